@@ -1,0 +1,44 @@
+# Every target bootstraps .venv from nothing (python3 >= 3.11 and network access to PyPI).
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+# Arguments passed through to the CLI, e.g. `make demo ARGS="--duration 10"`.
+ARGS   ?=
+
+.PHONY: all test lint format bench demo soak schemas clean
+
+all: test
+
+$(STAMP): pyproject.toml setup.py
+	@$(PYTHON) -c 'import sys; sys.exit("followbot needs Python >= 3.11, found " + sys.version.split()[0]) if sys.version_info < (3, 11) else None'
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+	@touch $@
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q $(ARGS)
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff check --fix .
+	$(BIN)/ruff format .
+
+bench: $(STAMP)
+	$(BIN)/followbot bench $(ARGS)
+
+demo: $(STAMP)
+	$(BIN)/followbot demo $(ARGS)
+
+soak: $(STAMP)
+	$(BIN)/python -m pytest -q -m soak --run-soak $(ARGS)
+
+# Regenerate the committed JSON Schema contract after a deliberate, compatible change.
+schemas: $(STAMP)
+	$(BIN)/followbot schemas --output schemas/contract
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis build *.egg-info

@@ -1,0 +1,3 @@
+from followbot.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,419 @@
+"""The node loop every service runs: inputs, decoding with rejection counting, health, shutdown.
+
+Threading model
+---------------
+Zenoh delivers samples on its own threads. A subscription's callback only appends the payload
+bytes to that input's buffer and rings the node's doorbell (a ``queue.SimpleQueue``); all
+decoding and all handler code run in the node's single loop thread, so a handler never races
+another handler and never blocks Zenoh. Two buffering policies:
+
+``latest``
+    A one-slot buffer: a newer sample replaces an unprocessed older one (counted as
+    ``superseded``, not lost). For sensors where only the newest matters (images).
+``all``
+    A FIFO drained in order, bounded by ``capacity``; overflow drops the oldest and is counted
+    and logged as ``dropped``. For streams where every sample matters (scans, candidates).
+
+Bad input never stops a node: a payload that fails to decode or validate is counted in
+``rejected`` and logged (rate-limited); an exception in a handler is counted in ``errors`` and
+logged with its traceback (rate-limited); the next sample is processed as usual.
+
+Every node declares a liveliness token ``followbot/<robot>/alive/<service>`` and publishes
+:class:`~followbot.schemas.Health` on ``followbot/<robot>/health/<service>`` every
+``health_period_s``. SIGINT and SIGTERM stop the loop; the node then undeclares everything and
+the process exits 0.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Generic, Literal, TypeVar
+
+from followbot.schemas import Health, Keys, Message, RejectedMessage, decode, encode, topic_type
+
+from .bus import Bus
+from .settings import NodeSettings
+from .stats import RateLimitedLog, Window
+
+__all__ = ["Node", "Policy", "TypedPublisher", "configure_logging", "zenoh_node"]
+
+M = TypeVar("M", bound=Message)
+Policy = Literal["latest", "all"]
+
+#: Longest the loop sleeps without looking at its stop flag and timers.
+_MAX_WAIT_S = 0.1
+
+
+def configure_logging(level: str = "info") -> None:
+    logging.basicConfig(
+        level=getattr(logging, level.upper()),
+        format="%(asctime)s %(name)s %(levelname)s: %(message)s",
+    )
+
+
+class _Input(Generic[M]):
+    """One subscription: its buffer and its counters."""
+
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        key: str,
+        message_type: type[M],
+        handler: Callable[[M], None],
+        policy: Policy,
+        capacity: int,
+    ) -> None:
+        if policy not in ("latest", "all"):
+            raise ValueError(f"policy must be 'latest' or 'all', got {policy!r}")
+        if capacity < 1:
+            raise ValueError("capacity must be >= 1")
+        self.topic, self.key = topic, key
+        self.message_type, self.handler, self.policy = message_type, handler, policy
+        self.buffer: deque[bytes] = deque(maxlen=1 if policy == "latest" else capacity)
+        self._wake = node._wake
+        self.received = 0
+        self.superseded = 0
+        self.dropped = 0
+        self.rejected = 0
+        self.processed = 0
+        self.last_processed_ns = 0
+        """``time.monotonic_ns()`` of the last good message handled (0: none yet)."""
+
+    def on_payload(self, payload: bytes) -> None:
+        """Zenoh's thread: hand over and ring. Nothing else happens here."""
+        self.received += 1
+        if len(self.buffer) == self.buffer.maxlen:
+            if self.policy == "all":
+                self.dropped += 1
+            else:
+                self.superseded += 1
+        self.buffer.append(payload)
+        self._wake.put(self)
+
+
+class TypedPublisher(Generic[M]):
+    """Publishes messages of one topic; numbers them and can answer queries with the last."""
+
+    def __init__(self, node: Node, topic: str, key: str, raw, serve_last: bool) -> None:
+        self.topic, self.key = topic, key
+        self.message_type = topic_type(topic)
+        self._raw = raw
+        self._node = node
+        self.sent = 0
+        self.last_payload: bytes | None = None
+        if serve_last:
+            node.bus.queryable(key, lambda: self.last_payload)
+
+    def put(self, message: M) -> bytes:
+        """Encode and publish; sets ``message.seq`` to this publisher's count. Returns payload."""
+        if not isinstance(message, self.message_type):
+            raise TypeError(
+                f"{self.topic} carries {self.message_type.__name__}, not {type(message).__name__}"
+            )
+        message.seq = self.sent
+        payload = encode(message)
+        self._raw.put(payload)
+        self.sent += 1
+        self.last_payload = payload
+        return payload
+
+
+class Node:
+    """One service's presence on the bus and its single-threaded loop.
+
+    Declare inputs with :meth:`subscribe`, outputs with :meth:`publisher`, periodic work with
+    :meth:`every`, then call :meth:`run`.
+    """
+
+    def __init__(self, service: str, settings: NodeSettings, bus: Bus) -> None:
+        self.service = service
+        self.settings = settings
+        self.bus = bus
+        self.keys = Keys(settings.robot)
+        self.log = logging.getLogger(f"followbot.{service}")
+        self._ratelog = RateLimitedLog(self.log)
+        self._wake: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._inputs: list[_Input] = []
+        self._publishers: list[TypedPublisher] = []
+        self._timers: list[list] = []  # [next_due_ns, period_ns, fn, name]
+        self._on_stop: list[Callable[[], None]] = []
+        self._proc = Window(4096)
+        self._started_ns = time.monotonic_ns()
+        self.errors = 0
+        self.last_error = ""
+        self.status: Literal["ok", "degraded", "error"] = "ok"
+        self.notes: list[str] = []
+        self._health_pub = bus.publisher(self.keys.health(service))
+        self._last_health: tuple[int, dict[str, int], dict[str, int]] | None = None
+        self.bus.liveliness_token(self.keys.alive(service))
+        self.every(settings.health_period_s, self.publish_health, name="health")
+
+    # ------------------------------------------------------------------ declaration
+
+    def subscribe(
+        self,
+        topic: str,
+        handler: Callable[[M], None],
+        *,
+        policy: Policy = "all",
+        capacity: int = 10_000,
+    ) -> _Input[M]:
+        """Call ``handler(message)`` in the loop for each message on ``topic``."""
+        key = self.keys.topic(topic)
+        inp = _Input(self, topic, key, topic_type(topic), handler, policy, capacity)
+        self._inputs.append(inp)
+        self.bus.subscribe(key, inp.on_payload)
+        return inp
+
+    def publisher(
+        self, topic: str, *, reliable: bool = False, serve_last: bool = False
+    ) -> TypedPublisher:
+        """A publisher for ``topic``. ``reliable``: block rather than drop under congestion.
+        ``serve_last``: answer Zenoh queries on the key with the last message sent."""
+        key = self.keys.topic(topic)
+        pub = TypedPublisher(
+            self, topic, key, self.bus.publisher(key, reliable=reliable), serve_last
+        )
+        self._publishers.append(pub)
+        return pub
+
+    def every(self, period_s: float, fn: Callable[[], None], *, name: str = "") -> None:
+        """Run ``fn()`` in the loop every ``period_s`` (no drift; late ticks are not bunched)."""
+        if period_s <= 0:
+            raise ValueError("period_s must be > 0")
+        period_ns = int(period_s * 1e9)
+        self._timers.append([time.monotonic_ns() + period_ns, period_ns, fn, name or fn.__name__])
+
+    def on_stop(self, fn: Callable[[], None]) -> None:
+        """Run ``fn()`` once when the loop ends (final summaries, flushing files)."""
+        self._on_stop.append(fn)
+
+    def watch_alive(self, service: str, callback: Callable[[bool], None]) -> None:
+        """Call ``callback(alive)`` in the loop when ``service``'s liveliness changes."""
+
+        def on_change(_key: str, alive: bool) -> None:
+            self._wake.put(lambda: callback(alive))
+
+        self.bus.watch_liveliness(self.keys.alive(service), on_change)
+
+    def query(self, topic: str, timeout_s: float = 1.0) -> list[Message]:
+        """Ask the network for ``topic``'s current value (e.g. the target model)."""
+        out = []
+        for payload in self.bus.query(self.keys.topic(topic), timeout_s):
+            try:
+                out.append(decode(topic_type(topic), payload))
+            except RejectedMessage as exc:
+                self._ratelog.log(logging.WARNING, f"query:{topic}", "rejected reply: %s", exc)
+        return out
+
+    # ------------------------------------------------------------------ loop
+
+    def stop(self) -> None:
+        """Ask the loop to return (thread- and signal-safe)."""
+        self._stop.set()
+        self._wake.put(None)
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def run(self, duration_s: float | None = None) -> int:
+        """Serve until :meth:`stop`, SIGINT/SIGTERM or ``duration_s``; returns the exit code 0."""
+        deadline = None if duration_s is None else time.monotonic_ns() + int(duration_s * 1e9)
+        with _stop_on_signals(self):
+            while not self._stop.is_set():
+                now = time.monotonic_ns()
+                if deadline is not None and now >= deadline:
+                    break
+                wait_ns = _MAX_WAIT_S * 1e9
+                for t in self._timers:
+                    wait_ns = min(wait_ns, t[0] - now)
+                if deadline is not None:
+                    wait_ns = min(wait_ns, deadline - now)
+                try:
+                    item = self._wake.get(timeout=max(wait_ns, 0) / 1e9) if wait_ns > 0 else None
+                except queue.Empty:
+                    item = None
+                if item is not None:
+                    self._service(item)
+                self._run_timers()
+        for fn in self._on_stop:
+            self._call("stop", fn)
+        return 0
+
+    def spin_once(self) -> int:
+        """Process everything already delivered and due timers, without waiting (for tests)."""
+        n = 0
+        while True:
+            try:
+                item = self._wake.get_nowait()
+            except queue.Empty:
+                break
+            if item is not None:
+                self._service(item)
+                n += 1
+        self._run_timers()
+        return n
+
+    def _service(self, item) -> None:
+        if isinstance(item, _Input):
+            try:
+                payload = item.buffer.popleft()
+            except IndexError:  # a 'latest' slot already taken by an earlier ring
+                return
+            try:
+                message = decode(item.message_type, payload)
+            except RejectedMessage as exc:
+                item.rejected += 1
+                self._ratelog.log(
+                    logging.WARNING,
+                    f"reject:{item.topic}",
+                    "rejected %s payload: %s",
+                    item.topic,
+                    exc,
+                )
+                return
+            self._call(item.topic, item.handler, message)
+            item.processed += 1
+            item.last_processed_ns = time.monotonic_ns()
+        else:
+            self._call("event", item)
+
+    def _call(self, where: str, fn: Callable, *args) -> None:
+        t0 = time.perf_counter_ns()
+        try:
+            fn(*args)
+        except Exception as exc:
+            self.errors += 1
+            self.last_error = f"{where}: {type(exc).__name__}: {exc}"
+            self._ratelog.log(
+                logging.ERROR,
+                f"error:{where}",
+                "handler for %s failed: %s",
+                where,
+                exc,
+                exc_info=True,
+            )
+        finally:
+            if where != "timer":
+                self._proc.add((time.perf_counter_ns() - t0) / 1e6)
+
+    def _run_timers(self) -> None:
+        now = time.monotonic_ns()
+        for t in self._timers:
+            if now >= t[0]:
+                # Next tick on the original grid; if we fell more than a period behind,
+                # skip the missed ticks rather than firing them in a burst.
+                t[0] += t[1]
+                if t[0] <= now:
+                    t[0] = now + t[1] - (now - t[0]) % t[1]
+                self._call("timer", t[2])
+                if self._stop.is_set():
+                    return
+
+    # ------------------------------------------------------------------ health
+
+    def health(self) -> Health:
+        """The current vital signs (also published every ``health_period_s``)."""
+        now = time.monotonic_ns()
+        received = {i.topic: i.received for i in self._inputs}
+        sent = {p.topic: p.sent for p in self._publishers}
+        rates: dict[str, float] = {}
+        if self._last_health is not None:
+            t0, rx0, tx0 = self._last_health
+            dt = max((now - t0) / 1e9, 1e-9)
+            rates.update({f"in:{k}": (v - rx0.get(k, 0)) / dt for k, v in received.items()})
+            rates.update({f"out:{k}": (v - tx0.get(k, 0)) / dt for k, v in sent.items()})
+        self._last_health = (now, received, sent)
+        dropped: dict[str, int] = {}
+        for i in self._inputs:
+            if i.dropped:
+                dropped[i.topic] = i.dropped
+        p50, p99 = self._proc.percentiles()
+        status = self.status
+        if status == "ok" and (self.errors or dropped):
+            status = "degraded"
+        return Health(
+            stamp_ns=time.time_ns(),
+            service=self.service,
+            node_id=self.bus.node_id,
+            status=status,
+            uptime_s=(now - self._started_ns) / 1e9,
+            rates_hz=rates,
+            received=received,
+            rejected={i.topic: i.rejected for i in self._inputs},
+            dropped=dropped,
+            errors=self.errors,
+            proc_p50_ms=0.0 if p50 != p50 else p50,
+            proc_p99_ms=0.0 if p99 != p99 else p99,
+            last_error=self.last_error[:1024],
+            notes=list(self.notes)[:16],
+        )
+
+    def publish_health(self) -> None:
+        h = self.health()
+        for i in self._inputs:
+            if i.dropped:
+                self._ratelog.log(
+                    logging.WARNING,
+                    f"drop:{i.topic}",
+                    "%s: %d samples dropped so far (input queue of %d full)",
+                    i.topic,
+                    i.dropped,
+                    i.buffer.maxlen,
+                )
+        self._health_pub.put(encode(h))
+
+    def close(self) -> None:
+        """Undeclare everything this node declared (the liveliness token goes with it)."""
+        self.bus.close()
+
+
+@contextmanager
+def _stop_on_signals(node: Node) -> Iterator[None]:
+    """SIGINT/SIGTERM stop the node (main thread only; elsewhere signals are left alone)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, _frame) -> None:
+        node.log.info("%s received, stopping", signal.Signals(signum).name)
+        node.stop()
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+@contextmanager
+def zenoh_node(service: str, settings: NodeSettings) -> Iterator[Node]:
+    """A :class:`Node` on a real Zenoh session, closed cleanly on exit."""
+    from .bus import ZenohBus
+    from .session import open_session
+
+    session = open_session(settings.zenoh)
+    try:
+        bus = ZenohBus(session)
+        node = Node(service, settings, bus)
+        node.log.info(
+            "%s up: robot=%s zid=%s pid=%d", service, settings.robot, bus.node_id, os.getpid()
+        )
+        try:
+            yield node
+        finally:
+            node.close()
+    finally:
+        session.close()

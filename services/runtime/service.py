@@ -1,0 +1,105 @@
+"""The ``main`` every service shares: options, settings, a Zenoh node, then the loop."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import textwrap
+from collections.abc import Callable, Sequence
+from typing import TypeVar
+
+import msgspec
+import yaml
+
+from .node import Node, configure_logging, zenoh_node
+from .session import SessionError, add_zenoh_arguments, overrides_from_args
+from .settings import NodeSettings, SettingsError, load_settings
+
+__all__ = ["service_main", "settings_help"]
+
+S = TypeVar("S", bound=NodeSettings)
+
+
+def settings_help(settings_type: type[NodeSettings]) -> str:
+    """The default settings as YAML, for ``--help``."""
+    text = yaml.safe_dump(msgspec.to_builtins(settings_type()), sort_keys=False).rstrip()
+    return (
+        "settings (defaults shown; change with --config FILE or --set key=value, "
+        "e.g. --set zenoh.mode=client):\n" + textwrap.indent(text, "  ")
+    )
+
+
+def service_main(
+    service: str,
+    settings_type: type[S],
+    setup: Callable[[Node, S], object],
+    argv: Sequence[str] | None,
+    description: str,
+) -> int:
+    """Parse options, load settings, open a node, let ``setup`` declare its I/O, run the loop.
+
+    Exit codes: 0 after a clean stop (SIGINT, SIGTERM, --duration, or the service stopping
+    itself), 2 for bad options or settings, 1 when the Zenoh session cannot be opened.
+    """
+    stop_requested: list[int] = []
+    previous = {
+        s: signal.signal(s, lambda signum, _f: stop_requested.append(signum))
+        for s in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        parser = argparse.ArgumentParser(
+            prog=f"followbot run {service}",
+            description=description,
+            epilog=settings_help(settings_type),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        parser.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON)")
+        parser.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="override one setting (dotted key, YAML value); repeatable",
+        )
+        parser.add_argument(
+            "--duration", type=float, metavar="S", help="stop after S seconds (default: never)"
+        )
+        parser.add_argument(
+            "--print-settings",
+            action="store_true",
+            help="print the effective settings as YAML and exit",
+        )
+        add_zenoh_arguments(parser)
+        args = parser.parse_args(argv)
+        try:
+            settings = load_settings(
+                settings_type, args.config, [*args.set, *overrides_from_args(args)]
+            )
+        except SettingsError as exc:
+            print(f"followbot run {service}: {exc}", file=sys.stderr)
+            return 2
+        if args.print_settings:
+            print(yaml.safe_dump(msgspec.to_builtins(settings), sort_keys=False), end="")
+            return 0
+        configure_logging(settings.log_level)
+        log = logging.getLogger(f"followbot.{service}")
+        try:
+            with zenoh_node(service, settings) as node:
+                try:
+                    setup(node, settings)
+                except (ValueError, SettingsError) as exc:
+                    print(f"followbot run {service}: {exc}", file=sys.stderr)
+                    return 2
+                if stop_requested:
+                    return 0
+                code = node.run(args.duration)
+            log.info("%s stopped", service)
+            return code
+        except SessionError as exc:
+            log.error("%s", exc)
+            return 1
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)

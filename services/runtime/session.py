@@ -1,0 +1,129 @@
+"""Zenoh sessions from :class:`ZenohSettings`, and the shared CLI options that fill them.
+
+The only module (with :mod:`.bus`) that imports zenoh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+
+import zenoh
+
+from .settings import DEFAULT_ENDPOINT, ZenohSettings
+
+__all__ = [
+    "SessionError",
+    "add_zenoh_arguments",
+    "open_session",
+    "overrides_from_args",
+    "zenoh_config",
+]
+
+_zenoh_logging_started = False
+
+
+class SessionError(RuntimeError):
+    """The Zenoh session could not be opened (bad endpoint, port taken, bad config file)."""
+
+
+def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    """Translate settings into a ``zenoh.Config`` (an invalid key or value raises ValueError)."""
+    conf = zenoh.Config.from_file(settings.config) if settings.config else zenoh.Config()
+
+    def put(key: str, value: object) -> None:
+        try:
+            conf.insert_json5(key, json.dumps(value))
+        except Exception as exc:  # zenoh raises its own ZError
+            raise ValueError(f"zenoh config {key}={value!r}: {exc}") from None
+
+    put("mode", settings.mode)
+    put("scouting/multicast/enabled", settings.multicast_scouting)
+    put("transport/shared_memory/enabled", settings.shared_memory)
+    put("transport/link/tx/lease", settings.lease_ms)
+    connect, listen = list(settings.connect), list(settings.listen)
+    if not connect and not listen and not settings.config and settings.mode != "client":
+        # The embedded default: one rendezvous port on loopback. Whoever starts first binds it
+        # (the hub); the others connect to it and listen on a port of their own, through which
+        # gossip meshes the peers directly. A peer keeps retrying its connect endpoint, so when
+        # a hub dies, the next process to start becomes the hub and everyone finds it again.
+        if _rendezvous_free():
+            listen = [DEFAULT_ENDPOINT]
+        else:
+            connect, listen = [DEFAULT_ENDPOINT], ["tcp/127.0.0.1:0"]
+        put("listen/exit_on_failure", False)
+    elif settings.mode == "client" and not connect:
+        connect = [DEFAULT_ENDPOINT]
+    if connect:
+        put("connect/endpoints", connect)
+    if listen:
+        put("listen/endpoints", listen)
+    return conf
+
+
+def _rendezvous_free() -> bool:
+    """Whether nobody listens on DEFAULT_ENDPOINT yet."""
+    host, port = DEFAULT_ENDPOINT.removeprefix("tcp/").rsplit(":", 1)
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, int(port)))
+        except OSError:
+            return False
+    return True
+
+
+def open_session(settings: ZenohSettings) -> zenoh.Session:
+    """Open a session; the caller must close it (``with open_session(s) as session:``)."""
+    global _zenoh_logging_started
+    if not _zenoh_logging_started:
+        # Zenoh's own (Rust) log goes to stdout only for errors unless RUST_LOG says otherwise.
+        zenoh.init_log_from_env_or("error")
+        _zenoh_logging_started = True
+    try:
+        conf = zenoh_config(settings)
+        return zenoh.open(conf)
+    except Exception as exc:
+        raise SessionError(
+            f"cannot open a zenoh session (mode={settings.mode}, connect={settings.connect}, "
+            f"listen={settings.listen}): {exc}"
+        ) from None
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options zenoh's own tools take: --mode --connect --listen --config (+ ours)."""
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
+    g.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)",
+    )
+    g.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+    )
+    g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 configuration file")
+    g.add_argument("--robot", help="robot name; keys live under followbot/<robot>/")
+
+
+def overrides_from_args(args: argparse.Namespace) -> list[str]:
+    """Turn the zenoh CLI options into ``--set`` style overrides (applied last)."""
+    out: list[str] = []
+    if getattr(args, "mode", None):
+        out.append(f"zenoh.mode={args.mode}")
+    if getattr(args, "connect", None):
+        out.append(f"zenoh.connect={json.dumps(args.connect)}")
+    if getattr(args, "listen", None):
+        out.append(f"zenoh.listen={json.dumps(args.listen)}")
+    if getattr(args, "zenoh_config", None):
+        out.append(f"zenoh.config={json.dumps(args.zenoh_config)}")
+    if getattr(args, "robot", None):
+        out.append(f"robot={json.dumps(args.robot)}")
+    return out

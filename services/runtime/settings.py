@@ -1,0 +1,135 @@
+"""Settings: typed, strictly validated, loaded from a file and ``--set key=value`` overrides.
+
+Every service declares its settings as a msgspec Struct deriving from :class:`NodeSettings`
+(``forbid_unknown_fields=True``: a mistyped key is an error that names it, never silently
+ignored). Values come, in increasing priority, from the Struct's defaults, a YAML or JSON file
+(``--config FILE``) and ``--set dotted.key=value`` pairs (the value is parsed as YAML, so
+``--set zenoh.listen=[tcp/127.0.0.1:7000]`` and ``--set rate_hz=40`` work).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal, TypeVar
+
+import msgspec
+import yaml
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "NodeSettings",
+    "SettingsError",
+    "ZenohSettings",
+    "apply_overrides",
+    "load_settings",
+]
+
+#: Loopback rendezvous of the embedded default: the first process binds it, the others connect.
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+S = TypeVar("S", bound=msgspec.Struct)
+
+
+class SettingsError(ValueError):
+    """A settings file or override that is not valid; the message names the key."""
+
+
+class ZenohSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """How a process joins the Zenoh network (same options as zenoh's own tools).
+
+    With no endpoints at all, the embedded default applies: peer mode, multicast scouting off,
+    listen on and connect to ``DEFAULT_ENDPOINT`` on loopback, so processes on one machine find
+    each other with no router and no flags. Across machines name ``connect``/``listen``
+    endpoints (or a router) explicitly.
+    """
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: list[str] = []
+    listen: list[str] = []
+    config: str | None = None
+    """A zenoh JSON5 configuration file, applied first; the fields here override it."""
+    multicast_scouting: bool = False
+    shared_memory: bool = False
+    """Zenoh shared memory between processes of one host. Faster for images, but each
+    publishing process leaves ~18 MiB of *.zenoh files in /dev/shm, so it is off by default."""
+    lease_ms: Annotated[int, msgspec.Meta(ge=100, le=600_000)] = 1000
+    """Link lease: a hung peer's liveliness token expires after about this long."""
+
+
+class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """Settings every service has."""
+
+    robot: str = "robot"
+    """Robot name: every key lives under followbot/<robot>/."""
+    zenoh: ZenohSettings = msgspec.field(default_factory=ZenohSettings)
+    health_period_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+def _parse_file(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SettingsError(f"cannot read settings file {path}: {exc.strerror}") from None
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise SettingsError(
+            f"{path}: not valid {path.suffix.lstrip('.') or 'YAML'}: {exc}"
+        ) from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise SettingsError(f"{path}: expected a mapping of settings, got {type(data).__name__}")
+    return data
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Apply ``dotted.key=value`` overrides (values parsed as YAML) to a nested dict."""
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise SettingsError(f"--set expects key=value, got {item!r}")
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except yaml.YAMLError as exc:
+            raise SettingsError(f"--set {key}: value {raw!r} is not valid YAML: {exc}") from None
+        node = data
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise SettingsError(f"--set {key}: {part!r} is not a section")
+            node = child
+        node[parts[-1]] = value
+    return data
+
+
+def load_settings(
+    settings_type: type[S],
+    config_file: str | Path | None = None,
+    overrides: list[str] | None = None,
+    base: dict[str, Any] | None = None,
+) -> S:
+    """Build ``settings_type`` from defaults, ``base``, a file and overrides; validate strictly."""
+    data: dict[str, Any] = dict(base or {})
+    source = "settings"
+    if config_file is not None:
+        data.update(_parse_file(Path(config_file)))
+        source = str(config_file)
+    apply_overrides(data, list(overrides or []))
+    try:
+        return msgspec.convert(data, settings_type, strict=False)
+    except msgspec.ValidationError as exc:
+        raise SettingsError(f"{source}: {_explain(exc)}") from None
+
+
+def _explain(exc: msgspec.ValidationError) -> str:
+    """msgspec says ``... - at `$.zenoh.mode```; make the path read like the dotted key."""
+    text = str(exc)
+    head, sep, path = text.rpartition(" - at `$")
+    if sep:
+        dotted = path.rstrip("`").lstrip(".") or "(top level)"
+        return f"{dotted}: {head}"
+    return text

@@ -1,0 +1,60 @@
+"""Small measurement helpers: a bounded sample window with percentiles, a rate-limited log."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+
+import numpy as np
+
+__all__ = ["RateLimitedLog", "Window", "percentiles"]
+
+
+def percentiles(values, qs=(50, 99)) -> list[float]:
+    """Percentiles of ``values`` (NaN for each when empty)."""
+    if len(values) == 0:
+        return [float("nan")] * len(qs)
+    return [float(v) for v in np.percentile(np.asarray(values, dtype=np.float64), qs)]
+
+
+class Window:
+    """The last ``size`` samples of a quantity (bounded memory whatever the run length)."""
+
+    def __init__(self, size: int = 2048) -> None:
+        self._values: deque[float] = deque(maxlen=size)
+
+    def add(self, value: float) -> None:
+        self._values.append(value)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def percentiles(self, qs=(50, 99)) -> list[float]:
+        return percentiles(self._values, qs)
+
+
+class RateLimitedLog:
+    """Log a message at most once per ``interval_s`` per key, saying how many were suppressed.
+
+    Hot paths (a flood of malformed payloads) must not flood the log.
+    """
+
+    def __init__(self, logger: logging.Logger, interval_s: float = 5.0) -> None:
+        self._logger = logger
+        self._interval_ns = int(interval_s * 1e9)
+        self._last: dict[str, int] = {}
+        self._suppressed: dict[str, int] = {}
+
+    def log(self, level: int, key: str, msg: str, *args, exc_info=None) -> bool:
+        now = time.monotonic_ns()
+        last = self._last.get(key)
+        if last is not None and now - last < self._interval_ns:
+            self._suppressed[key] = self._suppressed.get(key, 0) + 1
+            return False
+        self._last[key] = now
+        n = self._suppressed.pop(key, 0)
+        if n:
+            msg = f"{msg} (+{n} similar suppressed)"
+        self._logger.log(level, msg, *args, exc_info=exc_info)
+        return True

@@ -1,0 +1,155 @@
+"""synthetic: a sensor publisher for smoke, load and soak tests (no physics, no feedback).
+
+Publishes sensors/scan, sensors/odom and (optionally) sensors/image at chosen rates, with
+sequence numbers and wall-clock stamps, for as long as asked, in bounded memory. The scene is
+fixed and cheap to compute: a round room and one person walking a circle round a still robot,
+whose two legs alternate (so scans contain real leg arcs for a detector to find). Use the
+simulator (services/sim, issue 3) when you need ground truth and closed-loop control.
+
+    followbot run synthetic --set scan_rate_hz=1000 --set count=100000
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from followbot.schemas import Image, LaserScan, Odometry
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.service import service_main
+from followbot.services.runtime.settings import NodeSettings
+
+__all__ = ["SyntheticScene", "SyntheticSettings", "main"]
+
+_Rate = Annotated[float, msgspec.Meta(ge=0, le=100_000)]
+
+
+class SyntheticSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
+    scan_rate_hz: _Rate = 40.0
+    beams: Annotated[int, msgspec.Meta(ge=1, le=10_000)] = 720
+    fov_deg: Annotated[float, msgspec.Meta(gt=0, le=360)] = 270.0
+    max_range_m: Annotated[float, msgspec.Meta(gt=0)] = 8.0
+    noise_m: Annotated[float, msgspec.Meta(ge=0)] = 0.015
+    room_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 4.0
+    walk_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
+    walk_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.6
+    odom_rate_hz: _Rate = 50.0
+    image_rate_hz: _Rate = 0.0
+    image_width: Annotated[int, msgspec.Meta(ge=8, le=4096)] = 320
+    image_height: Annotated[int, msgspec.Meta(ge=8, le=4096)] = 240
+    jpeg: bool = False
+    count: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """Stop after this many scans (0: run until stopped)."""
+    seed: int = 0
+
+
+class SyntheticScene:
+    """A round room with one walker; everything is a pure function of time."""
+
+    LEG_RADIUS_M = 0.06
+    STEP_M = 0.3  # thesis 5.2.2: 0.3 m steps
+
+    def __init__(self, settings: SyntheticSettings) -> None:
+        self.s = settings
+        fov = math.radians(settings.fov_deg)
+        n = settings.beams
+        self.angle_min = -fov / 2
+        self.angle_inc = fov / n if settings.fov_deg >= 360 else fov / max(n - 1, 1)
+        self.angles = self.angle_min + self.angle_inc * np.arange(n)
+        self.dirs = np.stack([np.cos(self.angles), np.sin(self.angles)], axis=1)
+        self.rng = np.random.default_rng(settings.seed)
+
+    def legs(self, t_s: float) -> np.ndarray:
+        """Centres (2x2) of the walker's legs at time ``t_s``: they swing alternately."""
+        s = self.s
+        omega = s.walk_speed_mps / s.walk_radius_m
+        phi = omega * t_s
+        centre = s.walk_radius_m * np.array([math.cos(phi), math.sin(phi)])
+        heading = np.array([-math.sin(phi), math.cos(phi)])
+        side = np.array([heading[1], -heading[0]])
+        stride = s.walk_speed_mps / (2 * self.STEP_M) if s.walk_speed_mps else 0.0
+        swing = 0.5 * self.STEP_M * math.sin(2 * math.pi * stride * t_s / 2)
+        return np.stack(
+            [centre + 0.1 * side + swing * heading, centre - 0.1 * side - swing * heading]
+        )
+
+    def ranges(self, t_s: float) -> np.ndarray:
+        r = np.full(len(self.angles), self.s.room_radius_m)
+        for c in self.legs(t_s):
+            # ray p = t*d meets circle |p - c| = R where t^2 - 2 t d.c + |c|^2 - R^2 = 0
+            b = self.dirs @ c
+            disc = b * b - (c @ c - self.LEG_RADIUS_M**2)
+            hit = disc >= 0
+            t = b[hit] - np.sqrt(disc[hit])
+            r[hit] = np.where(t > 0, np.minimum(r[hit], t), r[hit])
+        if self.s.noise_m:
+            r = r + self.rng.normal(0.0, self.s.noise_m, r.shape)
+        r[r > self.s.max_range_m] = np.inf
+        return r.astype(np.float32)
+
+    def image(self, t_s: float) -> np.ndarray:
+        """A textured background with the walker as a coloured column where the camera sees it."""
+        w, h = self.s.image_width, self.s.image_height
+        img = np.empty((h, w, 3), np.uint8)
+        img[:] = (np.arange(w, dtype=np.uint16)[None, :, None] * 200 // w).astype(np.uint8)
+        c = self.legs(t_s).mean(axis=0)
+        bearing = math.atan2(c[1], c[0])
+        f = (w / 2) / math.tan(math.radians(47.5 / 2))
+        if c[0] > 0.1 and abs(bearing) < math.radians(47.5 / 2):
+            u = int(w / 2 - f * c[1] / c[0])
+            half = max(2, int(f * 0.2 / c[0]))
+            img[h // 4 : h // 2, max(0, u - half) : u + half] = (40, 40, 200)  # shirt
+            img[h // 2 :, max(0, u - half) : u + half] = (120, 60, 20)  # trousers
+        return img
+
+
+def setup(node: Node, settings: SyntheticSettings) -> SyntheticScene:
+    scene = SyntheticScene(settings)
+    scans = node.publisher("sensors/scan")
+    odom = node.publisher("sensors/odom")
+    images = node.publisher("sensors/image")
+    t0 = time.monotonic()
+    sent = [0]
+
+    def publish_scan() -> None:
+        now = time.time_ns()
+        scans.put(
+            LaserScan.from_ranges(
+                scene.ranges(time.monotonic() - t0),
+                stamp_ns=now,
+                angle_min_rad=scene.angle_min,
+                angle_increment_rad=scene.angle_inc,
+                range_min_m=0.02,
+                range_max_m=settings.max_range_m,
+                scan_time_s=1.0 / settings.scan_rate_hz,
+            )
+        )
+        sent[0] += 1
+        if settings.count and sent[0] >= settings.count:
+            node.log.info("published %d scans, stopping", sent[0])
+            node.stop()
+
+    def publish_odom() -> None:
+        # The robot stands still at the odom origin.
+        odom.put(Odometry(stamp_ns=time.time_ns(), frame_id="odom", x_m=0.0, y_m=0.0, yaw_rad=0.0))
+
+    def publish_image() -> None:
+        pixels = scene.image(time.monotonic() - t0)
+        make = Image.jpeg_from_array if settings.jpeg else Image.from_array
+        images.put(make(pixels, stamp_ns=time.time_ns()))
+
+    if settings.scan_rate_hz > 0:
+        node.every(1.0 / settings.scan_rate_hz, publish_scan, name="scan")
+    if settings.odom_rate_hz > 0:
+        node.every(1.0 / settings.odom_rate_hz, publish_odom, name="odom")
+    if settings.image_rate_hz > 0:
+        node.every(1.0 / settings.image_rate_hz, publish_image, name="image")
+    return scene
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main("synthetic", SyntheticSettings, setup, argv, __doc__)
