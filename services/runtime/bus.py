@@ -26,6 +26,9 @@ class Closeable(Protocol):
 
 class Publisher(Protocol):
     def put(self, payload: bytes) -> None: ...
+    def matching(self) -> bool:
+        """Whether any subscriber currently matches this publisher's key."""
+        ...
 
 
 class Bus(Protocol):
@@ -43,6 +46,17 @@ class Bus(Protocol):
 
 
 # --------------------------------------------------------------------------- Zenoh
+
+
+class _ZenohPublisher:
+    __slots__ = ("_pub", "put")
+
+    def __init__(self, pub) -> None:
+        self._pub = pub
+        self.put = pub.put  # bound method: no extra call layer on the hot path
+
+    def matching(self) -> bool:
+        return bool(self._pub.matching_status.matching)
 
 
 class ZenohBus:
@@ -66,7 +80,7 @@ class ZenohBus:
             express=True,  # no batching: lowest latency for small, frequent messages
         )
         self._declared.append(pub)
-        return pub
+        return _ZenohPublisher(pub)
 
     def subscribe(self, key: str, callback: PayloadCallback):
         def on_sample(sample) -> None:
@@ -185,6 +199,10 @@ class _FakePublisher:
         if not isinstance(payload, bytes | bytearray):
             raise TypeError("put takes bytes or bytearray (as zenoh does)")
         self._net.put(self.key, bytes(payload))
+
+    def matching(self) -> bool:
+        with self._net._lock:
+            return any(key_matches(expr, self.key) for expr, _ in self._net._subs)
 
 
 class FakeBus:

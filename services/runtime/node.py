@@ -113,6 +113,10 @@ class TypedPublisher(Generic[M]):
         if serve_last:
             node.bus.queryable(key, lambda: self.last_payload)
 
+    def matching(self) -> bool:
+        """Whether any subscriber currently listens to this topic."""
+        return self._raw.matching()
+
     def put(self, message: M) -> bytes:
         """Encode and publish; sets ``message.seq`` to this publisher's count. Returns payload."""
         if not isinstance(message, self.message_type):
@@ -193,6 +197,15 @@ class Node:
             raise ValueError("period_s must be > 0")
         period_ns = int(period_s * 1e9)
         self._timers.append([time.monotonic_ns() + period_ns, period_ns, fn, name or fn.__name__])
+
+    def wait_for_subscribers(self, publisher: TypedPublisher, timeout_s: float) -> bool:
+        """Block until ``publisher`` has a subscriber, ``timeout_s`` passes or the node stops."""
+        deadline = time.monotonic() + timeout_s
+        while not publisher.matching():
+            if self._stop.is_set() or time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
 
     def on_stop(self, fn: Callable[[], None]) -> None:
         """Run ``fn()`` once when the loop ends (final summaries, flushing files)."""

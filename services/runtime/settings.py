@@ -75,9 +75,8 @@ def _parse_file(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise SettingsError(
-            f"{path}: not valid {path.suffix.lstrip('.') or 'YAML'}: {exc}"
-        ) from None
+        kind = "JSON" if path.suffix == ".json" else "YAML"
+        raise SettingsError(f"{path}: not valid {kind}: {exc}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -45,6 +45,8 @@ class SyntheticSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     count: Annotated[int, msgspec.Meta(ge=0)] = 0
     """Stop after this many scans (0: run until stopped)."""
     seed: int = 0
+    wait_for_subscribers_s: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Hold back the first scan until someone subscribes to sensors/scan (at most this long)."""
 
 
 class SyntheticScene:
@@ -142,6 +144,10 @@ def setup(node: Node, settings: SyntheticSettings) -> SyntheticScene:
         make = Image.jpeg_from_array if settings.jpeg else Image.from_array
         images.put(make(pixels, stamp_ns=time.time_ns()))
 
+    if settings.wait_for_subscribers_s > 0:
+        node.log.info("waiting up to %.1f s for a scan subscriber", settings.wait_for_subscribers_s)
+        if not node.wait_for_subscribers(scans, settings.wait_for_subscribers_s):
+            node.log.warning("no scan subscriber yet; publishing anyway")
     if settings.scan_rate_hz > 0:
         node.every(1.0 / settings.scan_rate_hz, publish_scan, name="scan")
     if settings.odom_rate_hz > 0:

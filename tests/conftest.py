@@ -1,0 +1,121 @@
+"""Shared fixtures: free loopback ports, followbot subprocesses, a Zenoh session for tests."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--run-soak", action="store_true", help="run the long soak tests")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--run-soak"):
+        return
+    skip = pytest.mark.skip(reason="soak test: opt in with `make soak` (--run-soak)")
+    for item in items:
+        if "soak" in item.keywords:
+            item.add_marker(skip)
+
+
+def free_port() -> int:
+    """A TCP port free on loopback right now (never hard-code ports in tests)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def robot() -> str:
+    """A robot name of its own per test, so tests never hear each other."""
+    return "t" + uuid.uuid4().hex[:10]
+
+
+class Proc:
+    """A followbot subprocess whose output is kept for assertions."""
+
+    def __init__(self, args: list[str], log: Path) -> None:
+        self.log = log
+        self._fh = log.open("w")
+        env = dict(os.environ, PYTHONUNBUFFERED="1", RUST_LOG="error")
+        self.p = subprocess.Popen(
+            [sys.executable, "-m", "followbot", *args],
+            stdout=self._fh,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
+
+    def wait(self, timeout: float) -> int:
+        try:
+            return self.p.wait(timeout)
+        finally:
+            self._fh.flush()
+
+    def signal(self, sig: int) -> None:
+        self.p.send_signal(sig)
+
+    @property
+    def output(self) -> str:
+        self._fh.flush()
+        return self.log.read_text()
+
+    def wait_for_output(self, text: str, timeout: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.output:
+                return
+            if self.p.poll() is not None:
+                break
+            time.sleep(0.02)
+        raise AssertionError(f"{text!r} not seen in output:\n{self.output}")
+
+    def kill(self) -> None:
+        if self.p.poll() is None:
+            self.p.send_signal(signal.SIGKILL)
+            self.p.wait(5)
+        self._fh.close()
+
+
+@pytest.fixture
+def spawn(tmp_path) -> Iterator:
+    procs: list[Proc] = []
+
+    def _spawn(*args: str) -> Proc:
+        proc = Proc(list(args), tmp_path / f"proc{len(procs)}.log")
+        procs.append(proc)
+        return proc
+
+    yield _spawn
+    for p in procs:
+        p.kill()
+
+
+@pytest.fixture
+def zenoh_session(endpoint):
+    """A Zenoh session of the test itself that listens on ``endpoint``."""
+    from followbot.services.runtime.session import open_session
+    from followbot.services.runtime.settings import ZenohSettings
+
+    session = open_session(ZenohSettings(listen=[endpoint]))
+    try:
+        yield session
+    finally:
+        session.close()

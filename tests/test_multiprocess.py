@@ -1,0 +1,154 @@
+"""Real processes, real Zenoh sessions on loopback: exchange, bad input, clean shutdown."""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import time
+
+import pytest
+from examples import scan
+
+from followbot.schemas import Health, Keys, decode, encode
+
+pytestmark = pytest.mark.multiprocess
+
+
+def _alive_watcher(session, key):
+    events: queue.SimpleQueue = queue.SimpleQueue()
+    import zenoh
+
+    sub = session.liveliness().declare_subscriber(
+        key,
+        lambda s: events.put("PUT" if s.kind == zenoh.SampleKind.PUT else "DELETE"),
+        history=True,
+    )
+    return sub, events
+
+
+def _expect(events: queue.SimpleQueue, kind: str, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if events.get(timeout=max(0.0, deadline - time.monotonic())) == kind:
+                return
+        except queue.Empty:
+            break
+    raise AssertionError(f"no liveliness {kind} within {timeout} s")
+
+
+def test_two_processes_exchange_scans(spawn, endpoint, robot, tmp_path, zenoh_session):
+    summary = tmp_path / "monitor.json"
+    keys = Keys(robot)
+    sub, events = _alive_watcher(zenoh_session, keys.alive("monitor"))
+    monitor = spawn(
+        "run",
+        "monitor",
+        "--robot",
+        robot,
+        "--connect",
+        endpoint,
+        "--set",
+        "topics=[sensors/scan, sensors/odom]",
+        "--set",
+        f"summary={summary}",
+        "--set",
+        "report_period_s=0.2",
+    )
+    _expect(events, "PUT", timeout=10)
+    synthetic = spawn(
+        "run",
+        "synthetic",
+        "--robot",
+        robot,
+        "--connect",
+        endpoint,
+        "--set",
+        "scan_rate_hz=200",
+        "--set",
+        "count=100",
+        "--set",
+        "wait_for_subscribers_s=10",
+    )
+    assert synthetic.wait(30) == 0, synthetic.output
+    time.sleep(0.5)
+    monitor.signal(signal.SIGTERM)
+    assert monitor.wait(5) == 0, monitor.output
+    stats = json.loads(summary.read_text())["sensors/scan"]
+    assert stats["received"] == 100, monitor.output
+    assert stats["lost"] == 0 and stats["rejected"] == 0
+    assert 100 < stats["rate_hz"] < 300
+    assert stats["age_p50_ms"] is not None and stats["age_p50_ms"] < 100
+    sub.undeclare()
+
+
+def test_a_running_node_rejects_bad_payloads_and_keeps_good_ones(
+    spawn, endpoint, robot, zenoh_session
+):
+    keys = Keys(robot)
+    healths: queue.SimpleQueue = queue.SimpleQueue()
+    hsub = zenoh_session.declare_subscriber(
+        keys.health("monitor"), lambda s: healths.put(decode(Health, s.payload.to_bytes()))
+    )
+    sub, events = _alive_watcher(zenoh_session, keys.alive("monitor"))
+    monitor = spawn(
+        "run",
+        "monitor",
+        "--robot",
+        robot,
+        "--connect",
+        endpoint,
+        "--set",
+        "health_period_s=0.2",
+    )
+    _expect(events, "PUT", timeout=10)
+    pub = zenoh_session.declare_publisher(keys.topic("sensors/scan"))
+    deadline = time.monotonic() + 10
+    while not pub.matching_status.matching and time.monotonic() < deadline:
+        time.sleep(0.02)
+    bad = [b"", b"\x00\x01", b"\xc1" * 100, encode(scan(n=8))[:-3], b"{json: no}"]
+    for i, payload in enumerate(bad):
+        pub.put(payload)
+        pub.put(encode(scan(n=32, seq=i)))
+    deadline = time.monotonic() + 10
+    last = None
+    while time.monotonic() < deadline:
+        last = healths.get(timeout=5)
+        if last.received.get("sensors/scan") == 10:
+            break
+    assert last is not None
+    assert last.received == {"sensors/scan": 10}
+    assert last.rejected == {"sensors/scan": len(bad)}
+    assert last.errors == 0
+    assert monitor.p.poll() is None, "the node died on bad input"
+    monitor.signal(signal.SIGTERM)
+    assert monitor.wait(5) == 0
+    assert "rejected sensors/scan payload" in monitor.output
+    hsub.undeclare()
+    sub.undeclare()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_node_exits_0_within_2_s_of_a_signal(spawn, endpoint, robot, zenoh_session, sig):
+    keys = Keys(robot)
+    sub, events = _alive_watcher(zenoh_session, keys.alive("synthetic"))
+    proc = spawn("run", "synthetic", "--robot", robot, "--connect", endpoint)
+    _expect(events, "PUT", timeout=10)
+    t0 = time.monotonic()
+    proc.signal(sig)
+    code = proc.wait(5)
+    elapsed = time.monotonic() - t0
+    assert code == 0, proc.output
+    assert elapsed < 2.0, f"took {elapsed:.2f} s to stop"
+    assert "Traceback" not in proc.output
+    assert "Warning" not in proc.output and "WARNING" not in proc.output
+    # and its liveliness token is gone with it
+    _expect(events, "DELETE", timeout=5)
+    sub.undeclare()
+
+
+def test_unreachable_settings_fail_with_a_clear_message(spawn):
+    proc = spawn("run", "monitor", "--set", "topics=[sensors/nope]", "--duration", "1")
+    assert proc.wait(20) == 2
+    assert "unknown topic 'sensors/nope'" in proc.output

@@ -1,0 +1,83 @@
+"""Settings files and overrides: strict, with errors that name the key."""
+
+from __future__ import annotations
+
+import msgspec
+import pytest
+
+from followbot.services.runtime.session import zenoh_config
+from followbot.services.runtime.settings import (
+    NodeSettings,
+    SettingsError,
+    ZenohSettings,
+    apply_overrides,
+    load_settings,
+)
+
+
+class DemoSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
+    rate_hz: float = 10.0
+    names: list[str] = []
+
+
+def test_defaults_file_and_overrides_apply_in_order(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("robot: r7\nrate_hz: 20\nzenoh:\n  mode: client\n")
+    s = load_settings(DemoSettings, f, ["rate_hz=40", "zenoh.connect=[tcp/10.0.0.1:7447]"])
+    assert s.robot == "r7" and s.rate_hz == 40.0
+    assert s.zenoh.mode == "client" and s.zenoh.connect == ["tcp/10.0.0.1:7447"]
+    assert s.health_period_s == 1.0
+
+
+def test_json_files_work_too(tmp_path):
+    f = tmp_path / "s.json"
+    f.write_text('{"names": ["a", "b"]}')
+    assert load_settings(DemoSettings, f).names == ["a", "b"]
+
+
+@pytest.mark.parametrize(
+    ("text", "overrides", "message"),
+    [
+        ("rate_hzz: 3\n", [], "unknown field `rate_hzz`"),
+        ("zenoh:\n  mdoe: peer\n", [], "zenoh: Object contains unknown field `mdoe`"),
+        ("rate_hz: fast\n", [], "rate_hz: Expected `float`"),
+        ("zenoh:\n  mode: bridge\n", [], "zenoh.mode"),
+        ("zenoh:\n  lease_ms: 5\n", [], "zenoh.lease_ms"),
+        ("- a\n- b\n", [], "expected a mapping"),
+        ("rate_hz: [1,\n", [], "not valid YAML"),
+        ("", ["rate_hz"], "key=value"),
+        ("robot: r1\n", ["robot.name=x"], "not a section"),
+        ("", ["robot.name=x"], "robot: Expected `str`"),
+    ],
+)
+def test_bad_settings_name_the_problem(tmp_path, text, overrides, message):
+    f = tmp_path / "bad.yaml"
+    f.write_text(text)
+    with pytest.raises(SettingsError, match=message.replace("[", r"\[")):
+        load_settings(DemoSettings, f, overrides)
+
+
+def test_missing_file_is_a_clear_error(tmp_path):
+    with pytest.raises(SettingsError, match="cannot read settings file"):
+        load_settings(DemoSettings, tmp_path / "nope.yaml")
+
+
+def test_override_values_are_yaml():
+    d = apply_overrides({}, ["a.b=3", "a.c=[x, y]", "d=true", "e="])
+    assert d == {"a": {"b": 3, "c": ["x", "y"]}, "d": True, "e": ""}
+
+
+def test_zenoh_config_defaults_and_explicit_endpoints():
+    conf = zenoh_config(ZenohSettings(listen=["tcp/127.0.0.1:0"], connect=[]))
+    assert conf.get_json("mode") == '"peer"'
+    assert conf.get_json("scouting/multicast/enabled") == "false"
+    assert conf.get_json("transport/shared_memory/enabled") == "false"
+    assert conf.get_json("transport/link/tx/lease") == "1000"
+    assert "tcp/127.0.0.1:0" in conf.get_json("listen/endpoints")
+    with pytest.raises(ValueError, match="connect/endpoints"):
+        zenoh_config(ZenohSettings(connect=["not an endpoint"]))
+
+
+def test_settings_help_round_trips_through_yaml():
+    s = load_settings(DemoSettings)
+    assert msgspec.to_builtins(s)["zenoh"]["mode"] == "peer"
