@@ -50,7 +50,7 @@ def test_latest_policy_keeps_only_the_newest_unprocessed(net):
 def test_bounded_queue_drops_oldest_and_counts(net):
     node = make_node(net)
     got = []
-    inp = node.subscribe("sensors/scan", lambda m: got.append(m.seq), capacity=3)
+    inp = node.subscribe("sensors/scan", lambda m: got.append(m.seq), capacity=3, dispatch="loop")
     for i in range(10):
         net.put(SCAN_KEY, encode(scan(n=10, seq=i)))
     node.spin_once()

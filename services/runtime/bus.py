@@ -86,6 +86,9 @@ class ZenohBus:
         def on_sample(sample) -> None:
             callback(sample.payload.to_bytes())
 
+        # zenoh-python's default (indirect) callback: its network thread pushes into a Rust
+        # channel and a Python thread of its own calls us, so the network thread never waits
+        # for the GIL while a node computes.
         sub = self.session.declare_subscriber(key, on_sample)
         self._declared.append(sub)
         return sub
