@@ -36,9 +36,10 @@ demo: $(STAMP)
 soak: $(STAMP)
 	$(BIN)/python -m pytest -q -m soak --run-soak $(ARGS)
 
-# Regenerate the committed JSON Schema contract after a deliberate, compatible change.
+# Regenerate the JSON Schema contract and docs/messages.md after a deliberate change.
 schemas: $(STAMP)
 	$(BIN)/followbot schemas --output schemas/contract
+	$(BIN)/followbot schemas --markdown docs/messages.md
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis build *.egg-info

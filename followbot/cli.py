@@ -65,6 +65,12 @@ def _cmd_schemas(args: argparse.Namespace, _rest) -> int:
         write_schemas,
     )
 
+    if args.markdown:
+        from followbot.schemas.docgen import write_markdown
+
+        write_markdown(Path(args.markdown))
+        print(f"wrote {args.markdown}")
+        return 0
     if args.check:
         old = json.loads(CONTRACT_FILE.read_text())
         problems = compatibility_problems(old, message_schemas())
@@ -127,6 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("schemas", help="print or write the JSON Schema of every message")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--output", metavar="DIR", help="write messages.schema.json into DIR")
+    g.add_argument("--markdown", metavar="FILE", help="write the Markdown reference (docs)")
     g.add_argument(
         "--check",
         action="store_true",

@@ -75,6 +75,7 @@ class Message(msgspec.Struct, kw_only=True, tag_field="type"):
     seq: Count = 0
     """Publisher's sequence number, to count losses."""
     schema_version: Annotated[int, msgspec.Meta(ge=1)] = SCHEMA_VERSION
+    """Version of the message definitions the publisher was built with."""
 
 
 class Array(msgspec.Struct, kw_only=True):

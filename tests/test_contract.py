@@ -8,6 +8,7 @@ import sys
 
 import msgspec
 import pytest
+from conftest import REPO
 
 from followbot.schemas.export import CONTRACT_FILE, compatibility_problems, message_schemas
 from followbot.schemas.messages import MESSAGE_TYPES
@@ -81,3 +82,14 @@ def test_cli_prints_and_checks_the_schemas(tmp_path):
         [sys.executable, "-m", "followbot", "schemas", "--output", str(tmp_path)], check=True
     )
     assert json.loads((tmp_path / "messages.schema.json").read_text())["$defs"] == doc["$defs"]
+
+
+def test_docs_messages_md_is_generated_from_the_current_schemas():
+    from followbot.schemas.docgen import messages_markdown
+
+    doc = REPO / "docs" / "messages.md"
+    assert doc.read_text() == messages_markdown(), (
+        "docs/messages.md is stale: regenerate it with `make schemas`"
+    )
+    for t in MESSAGE_TYPES:
+        assert f"### {t.__name__}" in doc.read_text()

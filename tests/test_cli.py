@@ -1,0 +1,70 @@
+"""The followbot command as a user meets it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.multiprocess
+
+
+def followbot(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "followbot", *args], capture_output=True, text=True,
+        timeout=timeout,
+    )  # fmt: skip
+
+
+def test_help_lists_the_commands():
+    out = followbot("--help")
+    assert out.returncode == 0
+    for cmd in ("run", "services", "topics", "schemas", "demo", "bench"):
+        assert cmd in out.stdout
+
+
+def test_service_help_shows_its_settings():
+    out = followbot("run", "synthetic", "--help")
+    assert out.returncode == 0
+    assert "scan_rate_hz: 40.0" in out.stdout and "--connect" in out.stdout
+
+
+def test_unknown_service_lists_the_valid_ones():
+    out = followbot("run", "nope")
+    assert out.returncode == 2
+    assert "unknown service 'nope'; valid names:" in out.stderr and "synthetic" in out.stderr
+
+
+def test_bad_settings_key_is_named(tmp_path):
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("scan_rate_hz: 10\nbeamz: 5\n")
+    out = followbot("run", "synthetic", "--config", str(cfg))
+    assert out.returncode == 2
+    assert "unknown field `beamz`" in out.stderr and str(cfg) in out.stderr
+
+
+def test_print_settings_shows_file_and_overrides(tmp_path):
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("scan_rate_hz: 10\n")
+    out = followbot(
+        "run", "synthetic", "--config", str(cfg), "--set", "beams=360", "--print-settings"
+    )
+    assert out.returncode == 0
+    assert "scan_rate_hz: 10.0" in out.stdout and "beams: 360" in out.stdout
+
+
+def test_topics_lists_every_topic():
+    out = followbot("topics")
+    assert "sensors/scan" in out.stdout and "LaserScan" in out.stdout
+
+
+def test_demo_runs_real_processes_and_reports_measured_figures(tmp_path):
+    out = followbot("demo", "--duration", "2", "--output", str(tmp_path), timeout=90)
+    assert out.returncode == 0, out.stdout + out.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    scans = summary["topics"]["sensors/scan"]
+    assert scans["received"] >= 40 and scans["lost"] == 0 and scans["rejected"] == 0
+    assert summary["exit_codes"] == {"monitor": 0, "synthetic": 0}
+    assert "sensors/scan" in out.stdout and "OK" in out.stdout
