@@ -91,6 +91,15 @@ def main(argv: list[str] | None = None) -> int:
                     [sys.executable, "-m", "followbot", *cmds[name]],
                     stdout=logs[name], stderr=subprocess.STDOUT, env=env,
                 )  # fmt: skip
+            # The clock starts once scans reach the monitor, so start-up is not counted.
+            deadline = time.monotonic() + 30
+            while not (h := healths.get("monitor")) or not h.received.get("sensors/scan"):
+                dead = [n for n, pr in procs.items() if pr.poll() is not None]
+                if dead or time.monotonic() > deadline:
+                    why = f"{dead[0]} exited" if dead else "no scans reached the monitor in 30 s"
+                    print(f"{why}; see the logs in {out}/")
+                    return 1
+                time.sleep(0.05)
             t0 = time.monotonic()
             tty = sys.stderr.isatty()
             shown = -1
