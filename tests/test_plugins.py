@@ -27,3 +27,12 @@ def test_registered_implementations_shadow_and_extend():
     assert reg.load("mine") is object
     with pytest.raises(UnknownPlugin, match=r"unknown detector 'other'; valid names: .*mine"):
         reg.load("other")
+
+
+def test_every_built_in_detector_is_an_installed_plugin():
+    from followbot.services.laser_legs import DETECTORS
+
+    reg = Registry("detectors")
+    for name, (cls, settings_cls) in DETECTORS.items():
+        loaded = reg.load(name)
+        assert loaded is cls and loaded.name == name and loaded.settings_type is settings_cls

@@ -1,0 +1,65 @@
+"""Time per scan of every detector: ``python -m followbot.services.laser_legs.bench``.
+
+Synthetic 720-beam scan (0.5 deg over 360 deg) of a room with two persons and a post, 1 cm
+range noise; median of many calls after a warm-up (the machine is shared and noisy: the median
+is the figure, the minimum shows the floor).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+from .detectors import DETECTORS, make_detector
+from .scene import make_scan, person_legs
+
+
+def bench_scan(n_beams: int = 720):
+    room = [(3, -3, 3, 3), (3, 3, -3, 3), (-3, 3, -3, -3), (-3, -3, 3, -3)]
+    people = [*person_legs(1.5, 0.3), *person_legs(2.5, -1.0), (1.0, 1.5, 0.05)]
+    inc = 2 * math.pi / n_beams
+    return make_scan(
+        people,
+        room,
+        fov_rad=inc * (n_beams - 1),
+        increment_rad=inc,
+        angle_min_rad=-math.pi,
+        noise_m=0.01,
+        rng=np.random.default_rng(1),
+    )
+
+
+def time_detector(name: str, scan, repeats: int = 3000) -> tuple[float, float]:
+    det = make_detector(name)
+    for _ in range(200):
+        det.detect(scan)
+    clock = time.perf_counter
+    ts = np.empty(repeats)
+    for i in range(repeats):
+        t0 = clock()
+        det.detect(scan)
+        ts[i] = clock() - t0
+    return float(np.median(ts) * 1e6), float(ts.min() * 1e6)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--beams", type=int, default=720)
+    p.add_argument("--repeats", type=int, default=3000)
+    args = p.parse_args(argv)
+    scan = bench_scan(args.beams)
+    sys.stdout.write(
+        f"| detector | median us/scan ({args.beams} beams) | min us |\n|---|---|---|\n"
+    )
+    for name in DETECTORS:
+        med, lo = time_detector(name, scan, args.repeats)
+        sys.stdout.write(f"| {name} | {med:.0f} | {lo:.0f} |\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,457 @@
+"""Pure, vectorised helpers shared by every leg detector (no Zenoh; DESIGN.md "Leg candidates").
+
+A detector turns one :class:`~followbot.schemas.LaserScan` into one
+:class:`~followbot.schemas.PersonCandidates`. The steps most of them share live here, each a
+function on numpy arrays:
+
+* beam validity: NaN, +-inf, 0, ``< range_min_m`` and ``> range_max_m`` are "no return";
+* polar -> cartesian in the scan's frame (REP-103: x forward, y left, angles counter-clockwise);
+  the cos/sin tables are cached per scan geometry (a scanner's geometry never changes), and
+  cartesian points are computed only for the beams a detector asks about;
+* clustering by consecutive range jump (thesis 3.4.1, eq. 3-6: ``|r_k - r_{k-1}| < eps``); a
+  cluster never spans a "no return" beam;
+* per-cluster reductions with ``ufunc.reduceat`` over interleaved ``[start, end + 1]`` indices
+  (so the beams between clusters never count): sums, minima, centroids, end-to-end width
+  (thesis eq. 4-6), inscribed angles;
+* leg pairing into persons (thesis 4.3.3) and the construction of the wire message.
+
+Clusters are two int arrays ``starts`` and ``ends`` (inclusive beam indices, ordered, disjoint);
+a detector keeps the clusters it likes with a boolean mask over them.
+
+Budget: a numpy call costs 1-8 us on the reference machine, so the hot path avoids full-scan
+passes beyond the few needed to cluster, and works on per-cluster arrays afterwards.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Protocol, runtime_checkable
+
+import msgspec
+import numpy as np
+
+from followbot.schemas import Candidate, LaserScan, Leg, PersonCandidates
+
+__all__ = [
+    "NO_RETURN",
+    "Beams",
+    "Clusters",
+    "LegDetector",
+    "LegSet",
+    "Prediction",
+    "beam_geometry",
+    "candidates_message",
+    "cluster_by_jump",
+    "cluster_min",
+    "cluster_sum",
+    "empty_candidates",
+    "gate",
+    "inscribed_angle_stats",
+    "pair_legs",
+    "paired_candidates",
+    "prepare",
+    "valid_mask",
+]
+
+#: Optional tracked-target position (x_m, y_m) in the scan's frame (thesis criterion 3).
+Prediction = tuple[float, float] | None
+
+#: Range given to "no return" beams inside a detector: far below any real range, so a jump to
+#: or from such a beam always splits clusters, and finite, so arithmetic on it stays finite.
+NO_RETURN = -1.0e6
+
+#: Most candidates one message may carry (schemas: MAX_ITEMS).
+MAX_CANDIDATES = 256
+
+
+@runtime_checkable
+class LegDetector(Protocol):
+    """What every detector offers: a ``name`` and ``detect``; settings are frozen Structs."""
+
+    name: str
+
+    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates: ...
+
+
+# --------------------------------------------------------------------------- beams
+
+
+def valid_mask(ranges_m: np.ndarray, range_min_m: float, range_max_m: float) -> np.ndarray:
+    """True where a beam has a return: > 0 and within [range_min_m, range_max_m].
+
+    NaN compares False with everything (no warning for comparisons), so it falls out of the
+    bounds test by itself, and so do +-inf through ``range_max_m``.
+    """
+    lo = float(range_min_m)
+    above = ranges_m >= lo if lo > 0 else ranges_m > 0.0
+    return above & (ranges_m <= range_max_m)
+
+
+@functools.lru_cache(maxsize=32)
+def beam_geometry(
+    angle_min_rad: float, angle_increment_rad: float, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bearings, cosines and sines of every beam, each padded with one trailing 0.
+
+    Read-only and cached per scan geometry. The padding lets ``reduceat`` run over
+    interleaved ``[start, end + 1]`` bounds (see :meth:`Clusters.bounds`).
+    """
+    angles = np.zeros(n + 1)
+    angles[:n] = angle_min_rad + angle_increment_rad * np.arange(n, dtype=np.float64)
+    cos = np.cos(angles)
+    sin = np.sin(angles)
+    cos[n] = sin[n] = 0.0
+    for a in (angles, cos, sin):
+        a.flags.writeable = False
+    return angles, cos, sin
+
+
+class Beams(msgspec.Struct, frozen=True):
+    """One scan made ready for detection. Arrays ending in ``p`` carry one padding element
+    after the last beam (for ``reduceat``); the others are views of them, one per beam."""
+
+    rpp: np.ndarray
+    """Ranges (m), float64, padded with :data:`NO_RETURN` at both ends (n + 2)."""
+    valid: np.ndarray
+    anglesp: np.ndarray
+    cosp: np.ndarray
+    sinp: np.ndarray
+    increment_rad: float
+    """|angular increment| between beams (rad)."""
+
+    @property
+    def r(self) -> np.ndarray:
+        """Ranges; :data:`NO_RETURN` where a beam has no return."""
+        return self.rpp[1:-1]
+
+    @property
+    def rp(self) -> np.ndarray:
+        return self.rpp[1:]
+
+    @property
+    def angles(self) -> np.ndarray:
+        return self.anglesp[:-1]
+
+    @property
+    def cos(self) -> np.ndarray:
+        return self.cosp[:-1]
+
+    @property
+    def sin(self) -> np.ndarray:
+        return self.sinp[:-1]
+
+    def xy(self, idx: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+        """Cartesian points of the beams ``idx`` (polar -> cartesian, scan frame)."""
+        r = self.rpp[1:][idx]
+        return r * self.cosp[idx], r * self.sinp[idx]
+
+    @property
+    def n(self) -> int:
+        return int(self.valid.shape[0])
+
+
+def prepare(scan: LaserScan, clip_range_m: float | None = None) -> Beams:
+    """Ranges as float64 with "no return" beams set to :data:`NO_RETURN`; optional clipping.
+
+    ``clip_range_m`` reproduces the thesis's setting (4.3.1: ranges beyond 3.5 m are set to
+    3.5 m); clipped beams stay valid, at the clip range.
+    """
+    raw = scan.ranges_m()
+    n = raw.shape[0]
+    valid = valid_mask(raw, scan.range_min_m, scan.range_max_m)
+    rpp = np.full(n + 2, NO_RETURN)
+    r = rpp[1:-1]
+    np.copyto(r, raw, where=valid)  # float32 -> float64 on the way
+    if clip_range_m is not None:
+        np.minimum(r, clip_range_m, out=r)
+    angles, cos, sin = beam_geometry(
+        float(scan.angle_min_rad), float(scan.angle_increment_rad), int(n)
+    )
+    return Beams(
+        rpp=rpp,
+        valid=valid,
+        anglesp=angles,
+        cosp=cos,
+        sinp=sin,
+        increment_rad=abs(float(scan.angle_increment_rad)) or math.radians(0.5),
+    )
+
+
+def polar_to_xy(r: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x = r cos(theta), y = r sin(theta) (REP-103)."""
+    return r * np.cos(angles), r * np.sin(angles)
+
+
+# --------------------------------------------------------------------------- clusters
+
+
+class Clusters(msgspec.Struct, frozen=True):
+    """Runs of consecutive valid beams: inclusive ``starts[i]..ends[i]``."""
+
+    starts: np.ndarray
+    ends: np.ndarray
+
+    @property
+    def counts(self) -> np.ndarray:
+        return self.ends - self.starts + 1
+
+    def select(self, keep: np.ndarray) -> Clusters:
+        return Clusters(self.starts[keep], self.ends[keep])
+
+    def bounds(self) -> np.ndarray:
+        """Interleaved ``[s0, e0 + 1, s1, e1 + 1, ...]`` for ``reduceat`` on a padded array."""
+        out = np.empty(2 * self.starts.shape[0], dtype=np.intp)
+        out[0::2] = self.starts
+        out[1::2] = self.ends + 1
+        return out
+
+    def beams(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every beam of every cluster, and the cluster index of each (both 1-D)."""
+        counts = self.counts
+        k = counts.shape[0]
+        cid = np.repeat(np.arange(k), counts)
+        offsets = np.cumsum(counts) - counts
+        idx = np.arange(cid.shape[0]) - offsets[cid] + self.starts[cid]
+        return idx, cid
+
+    def __len__(self) -> int:
+        return int(self.starts.shape[0])
+
+
+_EMPTY = np.zeros(0, dtype=np.intp)
+_EMPTY.flags.writeable = False
+
+
+def cluster_by_jump(b: Beams, max_jump_m: float) -> Clusters:
+    """Split the scan where ``|r_k - r_{k-1}| >= max_jump_m`` or a beam has no return.
+
+    thesis 3.4.1 eq. 3-6 / 4.3.1: adjacent readings closer than 60 mm share a cluster.
+    Beams without return carry :data:`NO_RETURN`, as do the pads before the first and after
+    the last beam, so every jump to or from them is a cut and validity costs no extra pass.
+    """
+    # cut[i] = k: a run starts at beam k (k in 0..n); runs are cut[i] .. cut[i+1] - 1
+    cut = np.flatnonzero(np.abs(np.diff(b.rpp)) >= max_jump_m)
+    starts = cut[:-1]
+    keep = b.valid[starts]
+    return Clusters(starts[keep], cut[1:][keep] - 1)
+
+
+def cluster_sum(values: np.ndarray, c: Clusters) -> np.ndarray:
+    """Sum of ``values`` per cluster; ``values`` needs one element past the last beam of the
+    last cluster (e.g. ``Beams.rp``, ``Beams.cosp``)."""
+    if len(c) == 0:
+        return np.zeros(0)
+    return np.add.reduceat(values, c.bounds())[0::2]
+
+
+def cluster_min(values: np.ndarray, c: Clusters) -> np.ndarray:
+    """Minimum of ``values`` per cluster; ``values`` needs one element past the last beam of
+    the last cluster (pass ``Beams.rp``)."""
+    if len(c) == 0:
+        return np.zeros(0)
+    return np.minimum.reduceat(values, c.bounds())[0::2]
+
+
+def end_width(b: Beams, c: Clusters) -> np.ndarray:
+    """End-to-end width, thesis eq. 4-6 ``W = sqrt(ra^2 + rb^2 - 2 ra rb cos(tb - ta))``."""
+    ra, rb = b.r[c.starts], b.r[c.ends]
+    cos = np.cos((c.ends - c.starts) * b.increment_rad)
+    w2 = ra * ra + rb * rb - 2.0 * ra * rb * cos
+    return np.sqrt(np.maximum(w2, 0.0, out=w2), out=w2)
+
+
+def centroids(b: Beams, c: Clusters) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of each cluster's points (cartesian)."""
+    if len(c) == 0:
+        z = np.zeros(0)
+        return z, z
+    bounds = c.bounds()
+    cnt = c.counts
+    xp = b.rp * b.cosp
+    yp = b.rp * b.sinp
+    return np.add.reduceat(xp, bounds)[0::2] / cnt, np.add.reduceat(yp, bounds)[0::2] / cnt
+
+
+def inscribed_angle_stats(b: Beams, c: Clusters) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (rad) of the inscribed angles of every cluster.
+
+    For each interior point P of a cluster with end points A and B the inscribed angle is APB
+    (thesis 3.4.2 eq. 3-7; Xavier et al. 2005, cited by seed 003 IV). On a circular arc all are
+    equal; a half circle gives 90 deg, a straight line 180 deg. Clusters of fewer than 3 points
+    get mean pi and std inf.
+    """
+    k = len(c)
+    if k == 0:
+        z = np.zeros(0)
+        return z, z
+    idx, cid = c.beams()
+    s, e = c.starts[cid], c.ends[cid]
+    interior = (idx != s) & (idx != e)
+    idx, s, e, cid = idx[interior], s[interior], e[interior], cid[interior]
+    px, py = b.xy(idx)
+    sx, sy = b.xy(s)
+    ex, ey = b.xy(e)
+    ax, ay = sx - px, sy - py
+    bx, by = ex - px, ey - py
+    ang = np.abs(np.arctan2(ax * by - ay * bx, ax * bx + ay * by))
+    cnt = np.bincount(cid, minlength=k).astype(np.float64)
+    sm = np.bincount(cid, weights=ang, minlength=k)
+    sq = np.bincount(cid, weights=ang * ang, minlength=k)
+    has = cnt > 0
+    mean = np.full(k, math.pi)
+    std = np.full(k, np.inf)
+    mean[has] = sm[has] / cnt[has]
+    std[has] = np.sqrt(np.maximum(sq[has] / cnt[has] - mean[has] ** 2, 0.0))
+    return mean, std
+
+
+# --------------------------------------------------------------------------- legs -> persons
+
+
+class LegSet(msgspec.Struct, frozen=True):
+    """Accepted legs of one scan, as parallel arrays."""
+
+    x: np.ndarray
+    y: np.ndarray
+    first: np.ndarray
+    last: np.ndarray
+    width_m: np.ndarray
+
+    @classmethod
+    def from_clusters(cls, b: Beams, c: Clusters, width_m: np.ndarray) -> LegSet:
+        """Legs at the centroid ("middle", thesis 4.3.3) of each cluster."""
+        x, y = centroids(b, c)
+        return cls(x, y, c.starts, c.ends, width_m)
+
+    @classmethod
+    def empty(cls) -> LegSet:
+        z = np.zeros(0)
+        return cls(z, z, _EMPTY, _EMPTY, z)
+
+    def select(self, keep: np.ndarray) -> LegSet:
+        return LegSet(*(getattr(self, f)[keep] for f in self.__struct_fields__))
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+
+def gate(legs: LegSet, prediction: Prediction, radius_m: float) -> np.ndarray:
+    """Mask of the legs within ``radius_m`` of ``prediction`` (every leg when it is None or
+    not finite)."""
+    if prediction is None:
+        return np.ones(len(legs), dtype=bool)
+    px, py = float(prediction[0]), float(prediction[1])
+    if not (math.isfinite(px) and math.isfinite(py)):
+        return np.ones(len(legs), dtype=bool)
+    return np.hypot(legs.x - px, legs.y - py) < radius_m
+
+
+def pair_legs(x: list[float], y: list[float], max_distance_m: float) -> list[tuple[int, ...]]:
+    """Group legs into persons: closest pairs first, each leg used once (thesis 4.3.3).
+
+    Returns tuples of leg indices, ``(i, j)`` for two legs closer than ``max_distance_m`` and
+    ``(i,)`` for a lone leg, ordered by their first leg. Plain Python: a scan has a handful of
+    legs, and numpy's per-call cost would dominate.
+    """
+    k = len(x)
+    pairs = []
+    for i in range(k):
+        xi, yi = x[i], y[i]
+        for j in range(i + 1, k):
+            d = math.hypot(x[j] - xi, y[j] - yi)
+            if d < max_distance_m:
+                pairs.append((d, i, j))
+    pairs.sort()
+    used = [False] * k
+    groups: list[tuple[int, ...]] = []
+    for _, i, j in pairs:
+        if not used[i] and not used[j]:
+            used[i] = used[j] = True
+            groups.append((i, j))
+    groups.extend((i,) for i in range(k) if not used[i])
+    groups.sort()
+    return groups
+
+
+def empty_candidates(scan: LaserScan, detector: str) -> PersonCandidates:
+    return candidates_message(scan, detector, [])
+
+
+def candidates_message(
+    scan: LaserScan, detector: str, candidates: list[Candidate]
+) -> PersonCandidates:
+    """The wire message for one scan: same stamp, frame and seq as the scan; closest first
+    when more than the schema's bound must be dropped."""
+    if len(candidates) > MAX_CANDIDATES:
+        candidates = sorted(candidates, key=lambda c: c.range_m)[:MAX_CANDIDATES]
+    return PersonCandidates(
+        stamp_ns=scan.stamp_ns,
+        frame_id=scan.frame_id,
+        seq=scan.seq,
+        detector=detector,
+        n_beams=int(scan.ranges.shape[0]),
+        candidates=candidates,
+    )
+
+
+def person(
+    legs: list[Leg], pattern: str, confidence: float, x_m: float | None = None, y_m=None
+) -> Candidate:
+    """A person at the midpoint of its legs (thesis 4.3.3), unless given a position.
+
+    Width: a lone leg's width, or the legs' separation plus half of each leg's width.
+    """
+    if x_m is None or y_m is None:
+        x_m = sum(leg.x_m for leg in legs) / len(legs)
+        y_m = sum(leg.y_m for leg in legs) / len(legs)
+    if len(legs) == 2:
+        a, b = legs
+        width = math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) + 0.5 * (a.width_m + b.width_m)
+    else:
+        width = legs[0].width_m if legs else 0.0
+    return Candidate(
+        x_m=x_m,
+        y_m=y_m,
+        range_m=math.hypot(x_m, y_m),
+        bearing_rad=math.atan2(y_m, x_m),
+        width_m=width,
+        legs=legs,
+        pattern=pattern,
+        confidence=confidence,
+    )
+
+
+def leg_list(legs: LegSet) -> list[Leg]:
+    """The legs as wire structs (x, y, beam span, width)."""
+    return [
+        Leg(x_m=x, y_m=y, first_beam=f, last_beam=la, width_m=w)
+        for x, y, f, la, w in zip(
+            legs.x.tolist(),
+            legs.y.tolist(),
+            legs.first.tolist(),
+            legs.last.tolist(),
+            legs.width_m.tolist(),
+            strict=True,
+        )
+    ]
+
+
+def paired_candidates(
+    scan: LaserScan,
+    detector: str,
+    legs: LegSet,
+    pair_distance_m: float,
+    two_leg_confidence: float,
+    one_leg_confidence: float,
+) -> PersonCandidates:
+    """Pair ``legs`` (thesis 4.3.3) and wrap the persons as the wire message."""
+    wire = leg_list(legs)
+    groups = pair_legs([w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m)
+    out = [
+        person([wire[i] for i in g], "two_legs", two_leg_confidence)
+        if len(g) == 2
+        else person([wire[g[0]]], "one_leg", one_leg_confidence)
+        for g in groups
+    ]
+    return candidates_message(scan, detector, out)

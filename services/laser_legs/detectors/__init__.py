@@ -1,0 +1,62 @@
+"""Leg detectors, chosen by name (issue 4): each turns a LaserScan into PersonCandidates.
+
+``make_detector("thesis")`` builds the default; an unknown name fails with the valid names.
+Detectors are plugins of the entry-point group ``followbot.detectors`` (the built-in ones are
+declared in pyproject.toml), so another package can add its own: a class with ``name``,
+``settings_type`` (a frozen msgspec Struct) and ``detect(scan, prediction=None)``.
+Settings are passed as a Struct or as a mapping of overrides.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import msgspec
+
+from followbot.services.runtime.plugins import Registry, UnknownPlugin
+
+from ..core import LegDetector
+from .arc import ArcSettings, InscribedAngleArcDetector
+from .derivative import DerivativeSegmentDetector, DerivativeSettings
+from .iav import IAVSettings, InscribedAngleVarianceDetector
+from .thesis import ClusterLegDetector, ThesisSettings
+
+__all__ = [
+    "DETECTORS",
+    "ArcSettings",
+    "ClusterLegDetector",
+    "DerivativeSegmentDetector",
+    "DerivativeSettings",
+    "IAVSettings",
+    "InscribedAngleArcDetector",
+    "InscribedAngleVarianceDetector",
+    "ThesisSettings",
+    "make_detector",
+]
+
+#: The built-in detectors: name -> (detector class, settings class).
+DETECTORS: dict[str, tuple[type, type]] = {
+    "thesis": (ClusterLegDetector, ThesisSettings),
+    "arc": (InscribedAngleArcDetector, ArcSettings),
+    "iav": (InscribedAngleVarianceDetector, IAVSettings),
+    "derivative": (DerivativeSegmentDetector, DerivativeSettings),
+}
+
+
+#: Every installed detector, built-in or from other packages.
+REGISTRY = Registry("detectors")
+
+
+def make_detector(name: str = "thesis", settings: Any = None) -> LegDetector:
+    """The detector called ``name`` with ``settings`` (Struct, mapping of overrides, or None)."""
+    try:
+        cls = REGISTRY.load(name)
+    except UnknownPlugin as exc:
+        raise ValueError(str(exc)) from None
+    settings_cls = cls.settings_type
+    if isinstance(settings, Mapping):
+        settings = msgspec.convert(dict(settings), settings_cls)
+    elif settings is not None and not isinstance(settings, settings_cls):
+        raise TypeError(f"{name} expects {settings_cls.__name__}, got {type(settings).__name__}")
+    return cls(settings)

@@ -1,0 +1,98 @@
+"""Real-data table for every leg detector: ``python -m followbot.services.laser_legs.evaluate``.
+
+Leg recall on the labelled positives (a labelled leg is found when a detected leg lies within
+0.15 m) and false person candidates per scan on negative_2 (nobody there), on the held-out
+split of issue 4 (positive_6, positive_7; negative_2 /rear_scan, /right_scan) and on all the
+data. Also the median detection time per scan. See ``realdata`` for the data and pairing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from .detectors import DETECTORS, make_detector
+from .realdata import (
+    HELD_OUT_NEGATIVE_TOPICS,
+    HELD_OUT_POSITIVES,
+    NEGATIVE_TOPICS,
+    POSITIVES,
+    Score,
+    data_dir,
+    read_negative,
+    read_positive,
+    score,
+)
+
+log = logging.getLogger(__name__)
+
+#: Variants worth a row beside the defaults: name -> (detector, settings overrides).
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "thesis_noclip": ("thesis", {"clip_range_m": None}),
+    "arc_noclip": ("arc", {"clip_range_m": None}),
+}
+
+
+def run(names: list[str]) -> list[tuple[str, Score, Score]]:
+    held_pos = [s for n in HELD_OUT_POSITIVES for s in read_positive(n)]
+    held_neg = [s for t in HELD_OUT_NEGATIVE_TOPICS for s in read_negative(t)]
+    all_pos = [s for n in POSITIVES for s in read_positive(n)]
+    all_neg = [s for t in NEGATIVE_TOPICS for s in read_negative(t)]
+    rows = []
+    for name in names:
+        base, overrides = VARIANTS.get(name, (name, {}))
+        det = make_detector(base, overrides or None)
+        rows.append(
+            (
+                name,
+                score(det, held_pos, held_neg, name=name),
+                score(det, all_pos, all_neg, name=name),
+            )
+        )
+    return rows
+
+
+def table(rows: list[tuple[str, Score, Score]]) -> str:
+    head = (
+        "| detector | held-out leg recall | held-out recall <= 3.5 m | held-out false persons/scan "
+        "| all leg recall | all false persons/scan | all false legs/scan | median us/scan |\n"
+        "|---|---|---|---|---|---|---|---|"
+    )
+    lines = [head]
+    for name, h, a in rows:
+        lines.append(
+            f"| {name} | {h.recall:.3f} | {h.recall_near:.3f} | {h.false_candidates_per_scan:.2f} "
+            f"| {a.recall:.3f} | {a.false_candidates_per_scan:.2f} | {a.false_legs_per_scan:.2f} "
+            f"| {a.median_time_us:.0f} |"
+        )
+    h, a = rows[0][1], rows[0][2]
+    lines.append("")
+    lines.append(
+        f"held-out: {h.positive_scans} labelled scans ({h.labelled_legs} legs, "
+        f"{h.labelled_legs_near} within 3.5 m), {h.negative_scans} negative scans; "
+        f"all: {a.positive_scans} labelled scans ({a.labelled_legs} legs), "
+        f"{a.negative_scans} negative scans."
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument(
+        "--detectors",
+        nargs="*",
+        default=[*DETECTORS, *VARIANTS],
+        help=f"names among {sorted([*DETECTORS, *VARIANTS])}",
+    )
+    args = p.parse_args(argv)
+    if not data_dir().is_dir():
+        log.error("no leg_tracker data at %s (set FOLLOWBOT_LEG_DATA)", data_dir())
+        return 2
+    sys.stdout.write(table(run(args.detectors)) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO)
+    raise SystemExit(main())

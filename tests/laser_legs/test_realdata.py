@@ -1,0 +1,50 @@
+"""The real leg_tracker bags (../shared/data/leg_tracker): pairing, and floors on the figures.
+
+Skipped when the data or the ``rosbags`` package is absent. The floors sit below the measured
+figures (docs/laser_legs.md) so that a regression shows, not noise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from followbot.services.laser_legs import make_detector
+from followbot.services.laser_legs.realdata import data_dir, read_negative, read_positive, score
+
+pytest.importorskip("rosbags", reason="rosbags is needed to read the ROS 1 bags")
+if not (data_dir() / "positive_6_extracted.bag").is_file():
+    pytest.skip(
+        f"leg_tracker data absent at {data_dir()} (expected ../shared/data/leg_tracker "
+        "relative to the repository root, or $FOLLOWBOT_LEG_DATA)",
+        allow_module_level=True,
+    )
+
+
+def test_labels_pair_one_to_one_and_lie_on_scan_points():
+    items = read_positive("positive_6")
+    assert len(items) == 187
+    for it in items[::10]:
+        r = it.scan.ranges_m().astype(np.float64)
+        a = it.scan.angles_rad()
+        ok = np.isfinite(r)
+        x, y = r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])
+        for lx, ly in it.legs_xy:
+            # labels are in the laser frame: a scan point within a leg radius
+            assert np.min(np.hypot(x - lx, y - ly)) < 0.15
+        assert it.scan.frame_id == "rear_laser"
+
+
+def test_negative_topics():
+    for topic in ("/left_scan", "/rear_scan", "/right_scan"):
+        scans = read_negative(topic)
+        assert len(scans) > 400
+        assert scans[0].ranges.shape[0] > 700
+
+
+def test_thesis_figures_held_out():
+    pos = [s for n in ("positive_6", "positive_7") for s in read_positive(n)]
+    neg = [s for t in ("/rear_scan", "/right_scan") for s in read_negative(t)]
+    sc = score(make_detector("thesis"), pos, neg)
+    assert sc.recall_near > 0.7
+    assert sc.false_candidates_per_scan < 3.0

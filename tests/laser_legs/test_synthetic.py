@@ -1,0 +1,164 @@
+"""Synthetic scans with legs at known places: every detector finds them, at any resolution/FOV."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from followbot.schemas import PersonCandidates, decode, encode
+from followbot.services.laser_legs import DETECTORS, make_detector
+from followbot.services.laser_legs.core import pair_legs
+from followbot.services.laser_legs.detectors import ClusterLegDetector, ThesisSettings
+from followbot.services.laser_legs.scene import make_scan, person_legs
+
+WALL = [
+    (3.0, -3.0, 3.0, 3.0),
+    (3.0, 3.0, -3.0, 3.0),
+    (-3.0, 3.0, -3.0, -3.0),
+    (-3.0, -3.0, 3.0, -3.0),
+]
+
+# A leg is found at the middle of its visible arc, about 2/3 of a radius in front of its centre.
+LEG_TOL_M = 0.06
+
+
+def _nearest(points, x, y):
+    return min(math.hypot(px - x, py - y) for px, py in points)
+
+
+def _legs(result: PersonCandidates):
+    return [(leg.x_m, leg.y_m) for c in result.candidates for leg in c.legs]
+
+
+@pytest.mark.parametrize("increment_deg", [0.25, 0.36, 0.5, 1.0])
+@pytest.mark.parametrize("fov_deg", [100, 180, 270, 360])
+def test_thesis_two_legs_in_a_room(increment_deg, fov_deg):
+    px, py = 1.5, 0.2
+    legs = person_legs(px, py, separation_m=0.3, leg_radius_m=0.06)
+    scan = make_scan(
+        legs,
+        WALL,
+        fov_rad=math.radians(fov_deg) - math.radians(increment_deg),
+        increment_rad=math.radians(increment_deg),
+    )
+    result = ClusterLegDetector().detect(scan)
+    two = [c for c in result.candidates if c.pattern == "two_legs"]
+    assert len(two) == 1, result
+    c = two[0]
+    assert math.hypot(c.x_m - px, c.y_m - py) < LEG_TOL_M
+    assert c.range_m == pytest.approx(math.hypot(c.x_m, c.y_m))
+    assert c.bearing_rad == pytest.approx(math.atan2(c.y_m, c.x_m))
+    for lx, ly, _ in legs:
+        assert _nearest([(leg.x_m, leg.y_m) for leg in c.legs], lx, ly) < LEG_TOL_M
+    # the walls of the room are no legs
+    assert all(math.hypot(k.x_m - px, k.y_m - py) < 0.5 for k in result.candidates)
+
+
+@pytest.mark.parametrize("name", sorted(DETECTORS))
+def test_every_detector_finds_clean_legs(name):
+    """Noise-free half circles in front of a wall: every detector sees both legs."""
+    legs = person_legs(1.2, -0.3, separation_m=0.35, leg_radius_m=0.06)
+    scan = make_scan(legs, WALL, increment_rad=math.radians(0.5), fov_rad=math.radians(270))
+    result = make_detector(name).detect(scan)
+    found = _legs(result)
+    for lx, ly, _ in legs:
+        assert found and _nearest(found, lx, ly) < LEG_TOL_M, (name, result)
+    assert result.detector == name
+    assert result.n_beams == scan.ranges.shape[0]
+    assert decode(PersonCandidates, encode(result)) == result
+
+
+def test_lone_leg_and_far_legs():
+    # one leg alone; a second person 2 m away -> separate candidates
+    scan = make_scan(
+        [(1.0, 0.5, 0.06), *person_legs(1.5, -1.0)], WALL, increment_rad=math.radians(0.5)
+    )
+    result = ClusterLegDetector().detect(scan)
+    patterns = sorted(c.pattern for c in result.candidates)
+    assert patterns == ["one_leg", "two_legs"]
+    one = next(c for c in result.candidates if c.pattern == "one_leg")
+    assert math.hypot(one.x_m - 1.0, one.y_m - 0.5) < LEG_TOL_M
+    assert len(one.legs) == 1
+    assert one.confidence < next(c for c in result.candidates if c.pattern == "two_legs").confidence
+
+
+def test_thesis_clips_beyond_3_5_m():
+    scan = make_scan(
+        person_legs(4.0, 0.0), [(6.0, -6.0, 6.0, 6.0)], increment_rad=math.radians(0.25)
+    )
+    assert ClusterLegDetector().detect(scan).candidates == []
+    noclip = ClusterLegDetector(ThesisSettings(clip_range_m=None)).detect(scan)
+    # (the strip of wall seen between the legs, square to the robot, passes criteria 1-2 too)
+    assert any(
+        c.pattern == "two_legs" and math.hypot(c.x_m - 4.0, c.y_m) < LEG_TOL_M
+        for c in noclip.candidates
+    )
+
+
+def test_criterion_3_gates_on_prediction():
+    scan = make_scan(
+        person_legs(1.5, 0.8) + person_legs(1.5, -0.8), WALL, increment_rad=math.radians(0.5)
+    )
+    det = ClusterLegDetector()
+    assert len(det.detect(scan).candidates) == 2
+    gated = det.detect(scan, prediction=(1.45, 0.8))
+    assert len(gated.candidates) == 1
+    assert gated.candidates[0].y_m > 0
+    assert det.detect(scan, prediction=(0.0, 0.0)).candidates == []
+    # a non-finite prediction is ignored rather than trusted
+    assert len(det.detect(scan, prediction=(math.nan, 0.0)).candidates) == 2
+
+
+def test_criterion_1_rejects_concave_and_flat_clusters():
+    # a flat plank 0.2 m wide facing the robot: its closest point is the middle -> it passes
+    # criterion 1 (the thesis would take it); a plank seen obliquely has its closest point at
+    # an end and is rejected.
+    oblique = [(1.0, 0.3, 1.15, 0.45)]
+    scan = make_scan([], oblique, increment_rad=math.radians(0.5))
+    assert ClusterLegDetector().detect(scan).candidates == []
+
+
+def test_width_bounds():
+    post = make_scan([(1.5, 0.0, 0.02)], WALL, increment_rad=math.radians(0.25))  # 4 cm post
+    barrel = make_scan([(1.5, 0.0, 0.30)], WALL, increment_rad=math.radians(0.25))  # 60 cm
+    assert ClusterLegDetector().detect(post).candidates == []
+    assert ClusterLegDetector().detect(barrel).candidates == []
+
+
+def test_pair_legs_closest_first():
+    x = [0.0, 0.45, 0.55, 3.0]
+    y = [0.0, 0.0, 0.0, 0.0]
+    assert pair_legs(x, y, 0.5) == [(0,), (1, 2), (3,)]
+    assert pair_legs([], [], 0.5) == []
+
+
+def test_make_detector_by_name_and_settings():
+    det = make_detector("thesis", {"pair_distance_m": 0.4})
+    assert det.settings.pair_distance_m == 0.4
+    with pytest.raises(ValueError, match="arc, derivative, iav, thesis"):
+        make_detector("nope")
+    with pytest.raises(ValueError):
+        ThesisSettings(min_width_m=0.5, max_width_m=0.1)
+
+
+def test_stamp_frame_and_empty_scan():
+    scan = make_scan([], [], stamp_ns=123)  # nothing hit: every beam is inf
+    for name in DETECTORS:
+        result = make_detector(name).detect(scan)
+        assert result.candidates == []
+        assert result.stamp_ns == 123
+        assert result.frame_id == scan.frame_id
+
+
+def test_float64_and_reversed_scans():
+    legs = person_legs(1.5, 0.0)
+    scan = make_scan(legs, WALL, dtype=np.float64)
+    assert len(ClusterLegDetector().detect(scan).candidates) == 1
+    # negative increment: beams run clockwise
+    inc = -math.radians(0.5)
+    rev = make_scan(legs, WALL, increment_rad=inc, angle_min_rad=math.radians(90))
+    r = ClusterLegDetector().detect(rev)
+    assert len(r.candidates) == 1
+    assert math.hypot(r.candidates[0].x_m - 1.5, r.candidates[0].y_m) < LEG_TOL_M
