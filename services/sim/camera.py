@@ -1,0 +1,458 @@
+"""A pinhole camera that paints the world and the people with OpenCV polygons.
+
+The camera sits ``height_m`` above the floor at the robot's front (``mount_x_m``), looks
+horizontally along the robot heading plus the pan angle, and has focal length
+
+    f = (W / 2) / tan(hfov / 2)        (320 px, 47.5 deg: f ~ 363 px; DESIGN.md "Verification")
+
+A world point P = (X, Y, Z) with camera position C and camera yaw psi (robot yaw + pan) maps to
+
+    (x, y) = R(-psi) (P_xy - C),   u = W/2 - f y / x,   v = H/2 - f (Z - h_cam) / x,
+
+which is the inverse of the verifier's rectangle centre u = W/2 - f y / x (same convention, so
+the column a person is drawn at is the column vision_verify will look at).
+
+Drawing. Walls and box faces are cut into pieces of at most ``PIECE_M`` (so painter's order by
+piece distance is right for long walls too), clipped in the floor plane to the horizontal view
+frustum (no coordinates explode near the camera), and filled as quads with a panel shade, a
+skirting board and a rail (the texture that gives edges). Circles are upright cylinders.
+People are groups of convex polygons: trouser legs from each leg circle to the hip, shoes, a
+shirt trapezoid as wide as the body seen from that side, arms, hands, neck, hair and face
+ellipses, with optional stripes or checks. Everything is sorted far to near and painted
+(painter's algorithm). Brightness is scaled by the lighting gain and sensor noise is added from
+a bank of pre-drawn noise frames at a random offset (drawing 230 000 normals per frame would
+take longer than the whole render).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from .people import PersonState
+from .scenario import AppearanceSpec, CameraSpec
+from .world import StaticWorld, rgb_to_bgr
+
+__all__ = ["PIECE_M", "CameraModel"]
+
+#: Longest wall piece drawn as one quad, m.
+PIECE_M = 0.5
+_NEAR_M = 0.05
+_NOISE_BANK = 4
+_NOISE_PAD = 16
+#: Direction the light comes from (world frame), for shading walls by their orientation.
+_LIGHT = np.array([math.cos(0.6), math.sin(0.6)])
+
+
+def _shade(bgr: tuple[int, int, int] | np.ndarray, k: float) -> tuple[int, int, int]:
+    return (min(255, int(bgr[0] * k)), min(255, int(bgr[1] * k)), min(255, int(bgr[2] * k)))
+
+
+class CameraModel:
+    """Renders BGR frames of a :class:`StaticWorld` and people (settings: :class:`CameraSpec`)."""
+
+    def __init__(self, spec: CameraSpec, world: StaticWorld, rng: np.random.Generator) -> None:
+        self.spec = spec
+        self.width, self.height = spec.width, spec.height
+        self.cx, self.cy = spec.width / 2.0, spec.height / 2.0
+        self.focal_px = (spec.width / 2.0) / math.tan(math.radians(spec.hfov_deg) / 2.0)
+        self.world = world
+        self.period_s = 1.0 / spec.rate_hz
+        # frustum half-angle, a little wider than the image so quads reach its edges
+        self._tan_half = (self.cx + 4.0) / self.focal_px
+        self._pieces, self._piece_h, self._piece_bgr = self._cut_pieces(world)
+        if spec.noise_std > 0:
+            shape = (_NOISE_BANK, spec.height + _NOISE_PAD, spec.width + _NOISE_PAD, 3)
+            self._noise = np.round(rng.normal(0.0, spec.noise_std, shape)).astype(np.int16)
+        else:
+            self._noise = None
+
+    # ------------------------------------------------------------------ static geometry
+
+    @staticmethod
+    def _cut_pieces(world: StaticWorld) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cut every segment into pieces of at most PIECE_M; colours carry texture and light."""
+        pieces, heights, colours = [], [], []
+        for k, (x0, y0, x1, y1) in enumerate(world.segments):
+            length = math.hypot(x1 - x0, y1 - y0)
+            n = max(1, math.ceil(length / PIECE_M))
+            s = np.linspace(0.0, 1.0, n + 1)
+            xs, ys = x0 + s * (x1 - x0), y0 + s * (y1 - y0)
+            normal = np.array([-(y1 - y0), x1 - x0]) / max(length, 1e-12)
+            light = 0.75 + 0.25 * abs(float(normal @ _LIGHT))  # Lambert-ish, either side
+            base = world.segment_colour[k].astype(float) * light
+            for i in range(n):
+                pieces.append([xs[i], ys[i], xs[i + 1], ys[i + 1]])
+                heights.append(world.segment_height_m[k])
+                panel = 1.0 + (0.06 if (i % 2 == 0) else -0.06) if world.segment_is_wall[k] else 1.0
+                colours.append(base * panel)
+        return (
+            np.asarray(pieces, dtype=np.float64).reshape(-1, 4),
+            np.asarray(heights, dtype=np.float64),
+            np.asarray(colours, dtype=np.float64).reshape(-1, 3),
+        )
+
+    # ------------------------------------------------------------------ geometry helpers
+
+    def camera_pose(
+        self, robot_pose: tuple[float, float, float], pan_rad: float
+    ) -> tuple[float, float, float]:
+        x, y, yaw = robot_pose
+        return (
+            x + self.spec.mount_x_m * math.cos(yaw),
+            y + self.spec.mount_x_m * math.sin(yaw),
+            yaw + pan_rad,
+        )
+
+    def to_camera(self, cam: tuple[float, float, float], pts: np.ndarray) -> np.ndarray:
+        """World (..., 2) points to camera-frame (x forward, y left)."""
+        c, s = math.cos(cam[2]), math.sin(cam[2])
+        dx = pts[..., 0] - cam[0]
+        dy = pts[..., 1] - cam[1]
+        return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+
+    def column(self, x_cam: float, y_cam: float) -> float:
+        """Image column of a camera-frame point: u = W/2 - f y / x."""
+        return self.cx - self.focal_px * y_cam / x_cam
+
+    def row(self, x_cam: float, z_m: float) -> float:
+        """Image row of height z at depth x: v = H/2 - f (z - h_cam) / x."""
+        return self.cy - self.focal_px * (z_m - self.spec.height_m) / x_cam
+
+    def sees(
+        self,
+        robot_pose: tuple[float, float, float],
+        pan_rad: float,
+        point: np.ndarray,
+        z_m: float,
+    ) -> bool:
+        """Whether ``point`` at height ``z_m`` is in the image and not behind a taller wall."""
+        cam = self.camera_pose(robot_pose, pan_rad)
+        x, y = self.to_camera(cam, np.asarray(point, dtype=float))
+        if not (0.3 < x <= self.spec.max_range_m):
+            return False
+        if not (0.0 <= self.column(x, y) < self.width):
+            return False
+        segs = self.world.segments[self.world.segment_height_m > z_m]
+        if segs.shape[0] == 0:
+            return True
+        # does the sight line cam -> point cross a segment? (both orientation tests change sign)
+        px, py = float(point[0]), float(point[1])
+        ax, ay, bx, by = segs[:, 0], segs[:, 1], segs[:, 2], segs[:, 3]
+
+        def side(x0, y0, x1, y1, qx, qy):
+            return (x1 - x0) * (qy - y0) - (y1 - y0) * (qx - x0)
+
+        d1 = side(cam[0], cam[1], px, py, ax, ay)
+        d2 = side(cam[0], cam[1], px, py, bx, by)
+        d3 = side(ax, ay, bx, by, cam[0], cam[1])
+        d4 = side(ax, ay, bx, by, px, py)
+        return not bool(np.any((d1 * d2 < 0) & (d3 * d4 < 0)))
+
+    # ------------------------------------------------------------------ rendering
+
+    def render(
+        self,
+        robot_pose: tuple[float, float, float],
+        pan_rad: float,
+        people: list[tuple[PersonState, AppearanceSpec, float]],
+        gain: float,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """One HxWx3 BGR uint8 frame.
+
+        ``people`` holds (state, appearance, leg radius) per person; ``gain`` scales brightness.
+        """
+        w, h = self.width, self.height
+        cam = self.camera_pose(robot_pose, pan_rad)
+        img = np.empty((h, w, 3), dtype=np.uint8)
+        horizon = round(self.cy)
+        img[:horizon] = _shade(self.world.ceiling_bgr, gain)
+        img[horizon:] = _shade(self.world.floor_bgr, gain)
+        # far floor is darker: one band at the horizon gives the floor edge a gradient
+        band = max(1, h // 12)
+        img[horizon : horizon + band] = _shade(self.world.floor_bgr, 0.85 * gain)
+
+        jobs: list[tuple[float, int, object]] = []
+        self._queue_pieces(cam, jobs)
+        self._queue_circles(cam, jobs)
+        c, s = math.cos(cam[2]), math.sin(cam[2])
+        for k, (state, look, leg_r) in enumerate(people):
+            dx, dy = float(state.position[0]) - cam[0], float(state.position[1]) - cam[1]
+            x, y = c * dx + s * dy, -s * dx + c * dy
+            margin = 0.6 * self.focal_px / max(x, 1e-9)  # a person is < 1.2 m wide
+            if 0.3 < x <= self.spec.max_range_m and -margin < self.column(x, y) < w + margin:
+                jobs.append((math.hypot(x, y), 2, (k, state, look, leg_r)))
+        jobs.sort(key=lambda j: (-j[0], j[1]))
+        for _, kind, data in jobs:
+            if kind == 0:
+                self._draw_piece(img, data, gain)
+            elif kind == 1:
+                self._draw_cylinder(img, data, gain)
+            else:
+                self._draw_person(img, cam, data, gain)
+
+        if self._noise is not None:
+            k = int(rng.integers(_NOISE_BANK))
+            dy, dx = (int(v) for v in rng.integers(_NOISE_PAD, size=2))
+            img = cv2.add(img, self._noise[k, dy : dy + h, dx : dx + w], dtype=cv2.CV_8U)
+        return img
+
+    def _queue_pieces(self, cam: tuple[float, float, float], jobs: list) -> None:
+        if self._pieces.shape[0] == 0:
+            return
+        a = self.to_camera(cam, self._pieces[:, 0:2])
+        b = self.to_camera(cam, self._pieces[:, 2:4])
+        keep = np.ones(a.shape[0], dtype=bool)
+        t = self._tan_half
+        # clip to the half-planes x >= near, t x - y >= 0, t x + y >= 0 (g(P) >= 0 is inside)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for gx, gy, g0 in ((1.0, 0.0, -_NEAR_M), (t, -1.0, 0.0), (t, 1.0, 0.0)):
+                ga = gx * a[:, 0] + gy * a[:, 1] + g0
+                gb = gx * b[:, 0] + gy * b[:, 1] + g0
+                keep &= (ga >= 0) | (gb >= 0)
+                s = ga / (ga - gb)
+                cut = a + s[:, None] * (b - a)  # where the piece crosses the plane
+                a, b = (
+                    np.where((ga < 0)[:, None], cut, a),
+                    np.where((gb < 0)[:, None], cut, b),
+                )
+        idx = np.flatnonzero(keep)
+        if idx.size == 0:
+            return
+        a, b = a[idx], b[idx]
+        mid = 0.5 * (a + b)
+        dist = np.hypot(mid[:, 0], mid[:, 1]).tolist()
+        # all quads of all pieces at once: body, skirting board, rail -> (P, 3, 4, 2) pixels
+        f, cx, cy, hc = self.focal_px, self.cx, self.cy, self.spec.height_m
+        ua = cx - f * a[:, 1] / a[:, 0]
+        ub = cx - f * b[:, 1] / b[:, 0]
+        top = self._piece_h[idx]
+        n = idx.size
+        z = np.empty((n, 3, 2))  # [z0, z1] of each quad
+        z[:, 0, 0], z[:, 0, 1] = 0.0, top
+        z[:, 1] = (0.0, 0.1)
+        z[:, 2] = (0.88, 0.93)
+        va = cy - f * (z - hc) / a[:, 0, None, None]
+        vb = cy - f * (z - hc) / b[:, 0, None, None]
+        quads = np.empty((n, 3, 4, 2))
+        quads[:, :, 0, 0], quads[:, :, 0, 1] = ua[:, None], va[..., 1]
+        quads[:, :, 1, 0], quads[:, :, 1, 1] = ub[:, None], vb[..., 1]
+        quads[:, :, 2, 0], quads[:, :, 2, 1] = ub[:, None], vb[..., 0]
+        quads[:, :, 3, 0], quads[:, :, 3, 1] = ua[:, None], va[..., 0]
+        quads = np.rint(quads * 16).astype(np.int32)
+        walled = (top > 1.2).tolist()
+        for j, k in enumerate(idx.tolist()):
+            jobs.append((dist[j], 0, (quads[j], walled[j], self._piece_bgr[k])))
+
+    def _draw_piece(self, img, data, gain) -> None:
+        quads, walled, base = data
+        cv2.fillConvexPoly(img, quads[0], _shade(base, gain), cv2.LINE_8, 4)
+        if walled:  # walls: skirting board and a rail, so walls have edges
+            cv2.fillConvexPoly(img, quads[1], _shade(base, 0.55 * gain), cv2.LINE_8, 4)
+            cv2.fillConvexPoly(img, quads[2], _shade(base, 0.8 * gain), cv2.LINE_8, 4)
+
+    def _queue_circles(self, cam, jobs: list) -> None:
+        circles = self.world.circles
+        if circles.shape[0] == 0:
+            return
+        rel = self.to_camera(cam, circles[:, 0:2])
+        for k in np.flatnonzero(rel[:, 0] > 0.3):
+            x, y = rel[k]
+            half = self.focal_px * circles[k, 2] / x
+            u = self.column(x, y)
+            if -half <= u <= self.width + half:
+                jobs.append((float(math.hypot(x, y)), 1, (float(x), u, half, int(k))))
+
+    def _draw_cylinder(self, img, data, gain) -> None:
+        x, u, half, k = data
+        top = self.row(x, float(self.world.circle_height_m[k]))
+        bottom = self.row(x, 0.0)
+        bgr = self.world.circle_colour[k]
+        lit = _shade(bgr, gain)
+        dark = _shade(bgr, 0.65 * gain)
+        for (ua, ub), colour in (((u - half, u + half), lit), ((u + 0.3 * half, u + half), dark)):
+            pts = np.array([[ua, top], [ub, top], [ub, bottom], [ua, bottom]])
+            cv2.fillConvexPoly(img, np.round(pts * 16).astype(np.int32), colour, cv2.LINE_8, 4)
+
+    # people -----------------------------------------------------------------
+
+    def _draw_person(self, img, cam, data, gain) -> None:
+        """Queue the person's polygons (back to front), convert them at once, fill them."""
+        _, state, look, leg_r = data
+        f, cx, cy, hc = self.focal_px, self.cx, self.cy, self.spec.height_m
+        height = look.height_m
+        z_hip, z_sh = 0.52 * height, 0.82 * height
+        z_head = height - 0.115
+        body = self.to_camera(cam, state.position).tolist()
+        legs = self.to_camera(cam, state.legs).tolist()
+        # sideways direction of the body in the camera frame
+        rel_h = state.heading_rad - cam[2]
+        side = (-math.sin(rel_h), math.cos(rel_h))
+        view = math.atan2(body[1], body[0])
+        facing = math.cos(rel_h - view)  # > 0: walking away from the camera (back visible)
+        px_per_m = f / body[0]
+        detail = px_per_m > 40.0  # far people lose stripes, creases and hands
+
+        def pal(rgb, k=1.0):
+            return _shade(rgb_to_bgr(rgb), k * gain)
+
+        trousers, trousers_dark = pal(look.trousers_rgb), pal(look.trousers_rgb, 0.8)
+        shirt, shirt_dark = pal(look.shirt_rgb), pal(look.shirt_rgb, 0.78)
+        skin, hair, shoes = pal(look.skin_rgb), pal(look.hair_rgb), pal(look.shoes_rgb)
+
+        polys: list[tuple[list[tuple[float, float]], tuple[int, int, int]]] = []
+
+        def P(pt, z):  # camera-frame floor point + height -> pixel
+            return (cx - f * pt[1] / pt[0], cy - f * (z - hc) / pt[0])
+
+        def across(pt, r):  # offsets +-r perpendicular to the sight line
+            n = math.hypot(pt[0], pt[1])
+            ox, oy = -pt[1] / n * r, pt[0] / n * r
+            return (pt[0] + ox, pt[1] + oy), (pt[0] - ox, pt[1] - oy)
+
+        # legs: far one first; each from the leg circle on the floor to its hip joint
+        far_first = sorted(range(2), key=lambda i: -math.hypot(*legs[i]))
+        for rank, i in enumerate(far_first):
+            sgn = 0.09 if i == 0 else -0.09
+            hip = (body[0] + side[0] * sgn, body[1] + side[1] * sgn)
+            foot = legs[i]
+            if foot[0] < 0.2 or hip[0] < 0.2:
+                continue
+            fl, fr = across(foot, leg_r * 1.05)
+            hl, hr = across(hip, leg_r * 1.5)
+            colour = trousers_dark if rank == 0 else trousers
+            polys.append(([P(fl, 0.0), P(fr, 0.0), P(hr, z_hip), P(hl, z_hip)], colour))
+            if detail:  # a crease: a darker strip down one side of the leg
+                fm, _ = across(foot, leg_r * 0.3)
+                hm, _ = across(hip, leg_r * 0.45)
+                polys.append(
+                    ([P(fl, 0.0), P(fm, 0.0), P(hm, z_hip), P(hl, z_hip)], _shade(colour, 0.8))
+                )
+            polys.append(([P(fl, 0.0), P(fr, 0.0), P(fr, 0.08), P(fl, 0.08)], shoes))
+
+        if body[0] >= 0.3:
+            u0 = cx - f * body[1] / body[0]
+            # body as seen: shoulder width across, ~0.25 m deep
+            half_w = (
+                0.5
+                * px_per_m
+                * max(
+                    look.shoulder_width_m * abs(math.cos(rel_h - view))
+                    + 0.25 * abs(math.sin(rel_h - view)),
+                    0.25,
+                )
+            )
+            v_hip = cy - (z_hip - hc) * px_per_m
+            v_sh = cy - (z_sh - hc) * px_per_m
+            arm = 0.06 * px_per_m
+            for sgn in (-1.0, 1.0):  # arms just outside the torso's edges
+                xo = u0 + sgn * (half_w + arm * 0.6)
+                a0, a1 = xo - arm / 2, xo + arm / 2
+                polys.append(
+                    (
+                        [
+                            (a0, v_sh + arm * 0.3),
+                            (a1, v_sh + arm * 0.3),
+                            (a1, v_hip + arm),
+                            (a0, v_hip + arm),
+                        ],
+                        shirt_dark,
+                    )
+                )
+                if detail:
+                    polys.append(
+                        (
+                            [
+                                (a0, v_hip + arm),
+                                (a1, v_hip + arm),
+                                (a1, v_hip + 2.2 * arm),
+                                (a0, v_hip + 2.2 * arm),
+                            ],
+                            skin,
+                        )
+                    )
+            waist = 0.82 * half_w
+            v_waist = v_hip + 0.05 * px_per_m
+            polys.append(
+                (
+                    [
+                        (u0 - half_w, v_sh),
+                        (u0 + half_w, v_sh),
+                        (u0 + waist, v_waist),
+                        (u0 - waist, v_waist),
+                    ],
+                    shirt,
+                )
+            )
+            for sgn in (-1.0, 1.0):  # the torso is round: darker strips inside both edges
+                polys.append(
+                    (
+                        [
+                            (u0 + sgn * half_w, v_sh),
+                            (u0 + sgn * 0.7 * half_w, v_sh),
+                            (u0 + sgn * 0.7 * waist, v_hip),
+                            (u0 + sgn * waist, v_hip),
+                        ],
+                        shirt_dark,
+                    )
+                )
+            if detail and look.pattern in ("stripes", "checks"):
+                stripe = _shade(shirt, 0.6)
+                n = 5
+                for k in range(n):
+                    va = v_sh + (v_hip - v_sh) * (2 * k + 0.5) / (2 * n)
+                    vb = v_sh + (v_hip - v_sh) * (2 * k + 1.5) / (2 * n)
+                    wa = half_w - (half_w - waist) * (va - v_sh) / (v_hip - v_sh)
+                    wb = half_w - (half_w - waist) * (vb - v_sh) / (v_hip - v_sh)
+                    polys.append(
+                        ([(u0 - wa, va), (u0 + wa, va), (u0 + wb, vb), (u0 - wb, vb)], stripe)
+                    )
+                if look.pattern == "checks":
+                    bw = 0.08 * waist
+                    for frac in (-0.4, 0.0, 0.4):
+                        uc = u0 + frac * waist
+                        polys.append(
+                            (
+                                [
+                                    (uc - bw, v_sh),
+                                    (uc + bw, v_sh),
+                                    (uc + bw, v_hip),
+                                    (uc - bw, v_hip),
+                                ],
+                                stripe,
+                            )
+                        )
+            neck = 0.05 * px_per_m
+            v_neck = cy - (z_head - 0.08 - hc) * px_per_m
+            polys.append(
+                (
+                    [
+                        (u0 - neck, v_neck),
+                        (u0 + neck, v_neck),
+                        (u0 + neck, v_sh + 1),
+                        (u0 - neck, v_sh + 1),
+                    ],
+                    _shade(skin, 0.85),
+                )
+            )
+
+        if polys:
+            flat = np.rint(np.array([pt for pts, _ in polys for pt in pts]) * 16).astype(np.int32)
+            for k, (_, colour) in enumerate(polys):  # every polygon is a quad
+                cv2.fillConvexPoly(img, flat[4 * k : 4 * k + 4], colour, cv2.LINE_8, 4)
+
+        if body[0] >= 0.3:  # head: hair all round, face when turned towards the camera
+            vh = cy - (z_head - hc) * px_per_m
+            ax_w, ax_h = 0.085 * px_per_m, 0.115 * px_per_m
+            centre = (round(u0 * 16), round(vh * 16))
+            axes = (max(1, round(ax_w * 16)), max(1, round(ax_h * 16)))
+            cv2.ellipse(img, centre, axes, 0, 0, 360, hair, -1, cv2.LINE_8, 4)
+            if facing < 0.5:
+                frac = 0.8 if facing < -0.3 else 0.55
+                turn = 0.0 if facing < -0.3 else 0.2 * ax_w * math.sin(rel_h - view)
+                fc = (round((u0 - turn) * 16), round((vh + 0.25 * ax_h) * 16))
+                fa = (max(1, round(ax_w * frac * 16)), max(1, round(ax_h * 0.75 * 16)))
+                cv2.ellipse(img, fc, fa, 0, 0, 360, skin, -1, cv2.LINE_8, 4)
