@@ -152,3 +152,27 @@ def test_unreachable_settings_fail_with_a_clear_message(spawn):
     proc = spawn("run", "monitor", "--set", "topics=[sensors/nope]", "--duration", "1")
     assert proc.wait(20) == 2
     assert "unknown topic 'sensors/nope'" in proc.output
+
+
+def test_clients_talk_through_a_router(spawn, endpoint, robot, tmp_path):
+    """The multi-machine set-up on one host: a router, and two services in client mode."""
+    summary = tmp_path / "monitor.json"
+    router = spawn("run", "router", "--listen", endpoint, "--robot", robot)
+    router.wait_for_output("routing on")
+    client = ["--mode", "client", "--connect", endpoint, "--robot", robot]
+    monitor = spawn(
+        "run", "monitor", *client, "--set", f"summary={summary}", "--set", "report_period_s=0.2"
+    )
+    monitor.wait_for_output("monitor up")
+    synthetic = spawn(
+        "run", "synthetic", *client,
+        "--set", "scan_rate_hz=100", "--set", "count=50", "--set", "wait_for_subscribers_s=10",
+    )  # fmt: skip
+    assert synthetic.wait(30) == 0, synthetic.output
+    time.sleep(0.5)
+    monitor.signal(signal.SIGTERM)
+    assert monitor.wait(5) == 0, monitor.output
+    stats = json.loads(summary.read_text())["sensors/scan"]
+    assert stats["received"] == 50 and stats["lost"] == 0
+    router.signal(signal.SIGINT)
+    assert router.wait(5) == 0, router.output

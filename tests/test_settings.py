@@ -47,7 +47,7 @@ def test_json_files_work_too(tmp_path):
         ("rate_hz: [1,\n", [], "not valid YAML"),
         ("", ["rate_hz"], "key=value"),
         ("robot: r1\n", ["robot.name=x"], "not a section"),
-        ("", ["robot.name=x"], "robot: Expected `str`"),
+        ("", ["robot.name=x"], "not a section"),
     ],
 )
 def test_bad_settings_name_the_problem(tmp_path, text, overrides, message):
@@ -81,3 +81,14 @@ def test_zenoh_config_defaults_and_explicit_endpoints():
 def test_settings_help_round_trips_through_yaml():
     s = load_settings(DemoSettings)
     assert msgspec.to_builtins(s)["zenoh"]["mode"] == "peer"
+
+
+def test_a_partial_section_keeps_the_other_defaults_of_that_section(tmp_path):
+    from followbot.services.runtime.router import RouterSettings
+
+    s = load_settings(RouterSettings, None, ["zenoh.connect=[tcp/10.0.0.2:7447]"])
+    assert s.zenoh.mode == "router" and s.zenoh.listen == ["tcp/0.0.0.0:7447"]
+    assert s.zenoh.connect == ["tcp/10.0.0.2:7447"]
+    f = tmp_path / "r.yaml"
+    f.write_text("zenoh:\n  lease_ms: 2000\n")
+    assert load_settings(RouterSettings, f).zenoh.mode == "router"

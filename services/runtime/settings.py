@@ -111,17 +111,33 @@ def load_settings(
     overrides: list[str] | None = None,
     base: dict[str, Any] | None = None,
 ) -> S:
-    """Build ``settings_type`` from defaults, ``base``, a file and overrides; validate strictly."""
-    data: dict[str, Any] = dict(base or {})
+    """Build ``settings_type`` from defaults, ``base``, a file and overrides; validate strictly.
+
+    Each layer is merged key by key into the one below, so a partial section (``zenoh:
+    {connect: [...]}``) keeps the service's other defaults in that section.
+    """
+    try:
+        data: dict[str, Any] = msgspec.to_builtins(settings_type())
+    except TypeError:  # a settings type with required fields: start from nothing
+        data = {}
+    _merge(data, dict(base or {}))
     source = "settings"
     if config_file is not None:
-        data.update(_parse_file(Path(config_file)))
+        _merge(data, _parse_file(Path(config_file)))
         source = str(config_file)
     apply_overrides(data, list(overrides or []))
     try:
         return msgspec.convert(data, settings_type, strict=False)
     except msgspec.ValidationError as exc:
         raise SettingsError(f"{source}: {_explain(exc)}") from None
+
+
+def _merge(into: dict[str, Any], layer: dict[str, Any]) -> None:
+    for key, value in layer.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            _merge(into[key], value)
+        else:
+            into[key] = value
 
 
 def _explain(exc: msgspec.ValidationError) -> str:
