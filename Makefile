@@ -33,8 +33,9 @@ bench: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/followbot demo $(ARGS)
 
+# Long run: FOLLOWBOT_SOAK_S (default 60) seconds at FOLLOWBOT_SOAK_RATE (default 200) scans/s.
 soak: $(STAMP)
-	$(BIN)/python -m pytest -q -m soak --run-soak $(ARGS)
+	$(BIN)/python -m pytest -q -s -m soak --run-soak tests/test_soak.py $(ARGS)
 
 # Regenerate the JSON Schema contract and docs/messages.md after a deliberate change.
 schemas: $(STAMP)

@@ -480,6 +480,8 @@ class Health(Message, tag="health", kw_only=True):
     proc_p50_ms: NonNegative = 0.0
     proc_p99_ms: NonNegative = 0.0
     last_error: Annotated[str, msgspec.Meta(max_length=1024)] = ""
+    rss_mb: NonNegative = 0.0
+    """Resident memory of the process, MiB (0 where the platform does not say)."""
     notes: Annotated[list[Name], msgspec.Meta(max_length=16)] = []
 
 

@@ -68,3 +68,18 @@ def test_demo_runs_real_processes_and_reports_measured_figures(tmp_path):
     assert scans["received"] >= 60 and scans["lost"] == 0  # 2 s at 40 Hz and scans["rejected"] == 0
     assert summary["exit_codes"] == {"monitor": 0, "synthetic": 0}
     assert "sensors/scan" in out.stdout and "OK" in out.stdout
+
+
+def _service_names() -> list[str]:
+    from followbot.services.runtime.plugins import Registry
+
+    return Registry("services").names()
+
+
+@pytest.mark.parametrize("name", _service_names())
+def test_every_registered_service_loads_and_explains_its_settings(name):
+    """Conformance over every implementation of the 'services' role."""
+    out = followbot("run", name, "--help")
+    assert out.returncode == 0, out.stderr
+    assert f"followbot run {name}" in out.stdout
+    assert "settings (defaults shown" in out.stdout and "zenoh:" in out.stdout

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections import deque
 from pathlib import Path
 from typing import Annotated
 
@@ -46,8 +47,12 @@ class TopicStats:
         self.restarts = 0
         self._last_seq: int | None = None
         self.age_ms = Window(100_000)
+        self._period_age_ms = Window(1_000_000)
         self.first_ns = 0
         self.last_ns = 0
+        self._t0 = time.monotonic_ns()
+        #: One entry per report period: when, how many arrived, age p99 (bounded: ~11 days).
+        self.series: deque[dict] = deque(maxlen=1_000_000)
 
     def add(self, message: Message, now_wall_ns: int) -> None:
         now = time.monotonic_ns()
@@ -62,7 +67,21 @@ class TopicStats:
             elif gap < 0:
                 self.restarts += 1  # the publisher restarted its numbering
         self._last_seq = message.seq
-        self.age_ms.add((now_wall_ns - message.stamp_ns) / 1e6)
+        age = (now_wall_ns - message.stamp_ns) / 1e6
+        self.age_ms.add(age)
+        self._period_age_ms.add(age)
+
+    def close_period(self) -> dict:
+        """End a report period: append and return its figures."""
+        (p99,) = self._period_age_ms.percentiles((99,))
+        entry = {
+            "t_s": round((time.monotonic_ns() - self._t0) / 1e9, 3),
+            "received": len(self._period_age_ms),
+            "age_p99_ms": None if math.isnan(p99) else p99,
+        }
+        self._period_age_ms = Window(1_000_000)
+        self.series.append(entry)
+        return entry
 
     def summary(self, rejected: int) -> dict:
         span = (self.last_ns - self.first_ns) / 1e9
@@ -75,6 +94,7 @@ class TopicStats:
             "rate_hz": (self.count - 1) / span if span > 0 else 0.0,
             "age_p50_ms": None if math.isnan(p50) else p50,
             "age_p99_ms": None if math.isnan(p99) else p99,
+            "series": list(self.series),
         }
 
 
@@ -88,6 +108,8 @@ def setup(node: Node, settings: MonitorSettings) -> dict[str, TopicStats]:
         inputs[t] = node.subscribe(t, lambda m, s=s: s.add(m, time.time_ns()), policy="all")
 
     def report() -> None:
+        for s in stats.values():
+            s.close_period()
         for t, s in stats.items():
             d = s.summary(inputs[t].rejected)
             node.log.info(

@@ -51,7 +51,7 @@ from followbot.schemas import Health, Keys, Message, RejectedMessage, decode, en
 
 from .bus import Bus
 from .settings import NodeSettings
-from .stats import RateLimitedLog, Window
+from .stats import RateLimitedLog, Window, rss_mb
 
 __all__ = ["Node", "Policy", "TypedPublisher", "configure_logging", "zenoh_node"]
 
@@ -405,6 +405,7 @@ class Node:
             proc_p50_ms=0.0 if p50 != p50 else p50,
             proc_p99_ms=0.0 if p99 != p99 else p99,
             last_error=self.last_error[:1024],
+            rss_mb=rss_mb(),
             notes=list(self.notes)[:16],
         )
 

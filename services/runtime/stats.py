@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections import deque
 
 import numpy as np
 
-__all__ = ["RateLimitedLog", "Window", "percentiles"]
+__all__ = ["RateLimitedLog", "Window", "percentiles", "rss_mb"]
+
+_PAGE_MB = os.sysconf("SC_PAGE_SIZE") / 2**20 if hasattr(os, "sysconf") else 0.0
+
+
+def rss_mb() -> float:
+    """Resident memory of this process in MiB (Linux /proc; 0.0 elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * _PAGE_MB
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 def percentiles(values, qs=(50, 99)) -> list[float]:
