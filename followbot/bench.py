@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -79,12 +78,6 @@ def codec_figures() -> dict[str, float | bool]:
 
 
 # ----------------------------------------------------------------------------- hop latency
-
-
-def _free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def _zenoh_settings(**kw):
@@ -247,10 +240,10 @@ def round_trip_bare(session, endpoint: str, payload_size: int, count: int) -> di
 def hop_figures(scan_count: int, image_count: int) -> dict:
     from followbot.services.runtime.bus import ZenohBus
     from followbot.services.runtime.node import Node
-    from followbot.services.runtime.session import open_session
+    from followbot.services.runtime.session import free_loopback_endpoint, open_session
     from followbot.services.runtime.settings import NodeSettings
 
-    endpoint = _free_endpoint()
+    endpoint = free_loopback_endpoint()
     scan_size = len(encode(_scan()))
     image_size = len(encode(_image()))
     out: dict = {}

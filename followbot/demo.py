@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -23,12 +22,6 @@ from pathlib import Path
 from followbot.schemas import Health, decode
 
 SERVICES = ("synthetic", "monitor")
-
-
-def _free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def _bar(done: float, total: float, width: int = 30) -> str:
@@ -51,12 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.duration <= 0:
         p.error("--duration must be > 0")
 
-    from followbot.services.runtime.session import open_session
+    from followbot.services.runtime.session import free_loopback_endpoint, open_session
     from followbot.services.runtime.settings import ZenohSettings
 
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    endpoint = _free_endpoint()
+    endpoint = free_loopback_endpoint()
     robot = f"demo{os.getpid()}"
     summary_file = out / "monitor.json"
     summary_file.unlink(missing_ok=True)

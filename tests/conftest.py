@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -31,16 +30,12 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
-def free_port() -> int:
-    """A TCP port free on loopback right now (never hard-code ports in tests)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_port()}"
+    """A free loopback endpoint (never hard-code ports in tests)."""
+    from followbot.services.runtime.session import free_loopback_endpoint
+
+    return free_loopback_endpoint()
 
 
 @pytest.fixture

@@ -62,6 +62,13 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     return conf
 
 
+def free_loopback_endpoint() -> str:
+    """A TCP endpoint on loopback whose port is free right now (tests, demo, bench)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
 def _rendezvous_free() -> bool:
     """Whether nobody listens on DEFAULT_ENDPOINT yet."""
     host, port = DEFAULT_ENDPOINT.removeprefix("tcp/").rsplit(":", 1)
