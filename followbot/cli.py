@@ -94,6 +94,18 @@ def _cmd_demo(args: argparse.Namespace, rest: list[str]) -> int:
     return main(rest)
 
 
+def _cmd_record(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.recording import record_main
+
+    return record_main(rest)
+
+
+def _cmd_replay(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.recording import replay_main
+
+    return replay_main(rest)
+
+
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.bench import main
 
@@ -145,6 +157,18 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="run the live demo (options: `followbot demo --help`)", add_help=False
     )
     p.set_defaults(fn=_cmd_demo, passthrough=True)
+
+    p = sub.add_parser(
+        "record", help="record topics to MCAP (`followbot record --help`)", add_help=False
+    )
+    p.set_defaults(fn=_cmd_record, passthrough=True)
+
+    p = sub.add_parser(
+        "replay",
+        help="replay an MCAP file or a ROS 1/2 bag (`followbot replay --help`)",
+        add_help=False,
+    )
+    p.set_defaults(fn=_cmd_replay, passthrough=True)
 
     p = sub.add_parser(
         "bench", help="run the benchmarks (options: `followbot bench --help`)", add_help=False

@@ -83,6 +83,7 @@ class _Input(Generic[M]):
         policy: Policy,
         capacity: int,
         dispatch: Dispatch,
+        with_payload: bool = False,
     ) -> None:
         if policy not in ("latest", "all"):
             raise ValueError(f"policy must be 'latest' or 'all', got {policy!r}")
@@ -96,6 +97,7 @@ class _Input(Generic[M]):
         self.message_type, self.handler, self.policy = message_type, handler, policy
         self.buffer: deque[bytes] = deque(maxlen=1 if policy == "latest" else capacity)
         self.inline = dispatch == "inline"
+        self.with_payload = with_payload
         self._node = node
         self._wake = node._wake
         self.received = 0
@@ -200,13 +202,18 @@ class Node:
         policy: Policy = "all",
         capacity: int = 10_000,
         dispatch: Dispatch | None = None,
+        with_payload: bool = False,
     ) -> _Input[M]:
         """Call ``handler(message)`` for each message on ``topic`` (see the module docstring
-        for ``policy`` and ``dispatch``; dispatch defaults to inline for ``all``)."""
+        for ``policy`` and ``dispatch``; dispatch defaults to inline for ``all``).
+        ``with_payload``: call ``handler(message, payload)`` with the validated wire bytes too
+        (recorders keep them as they came)."""
         key = self.keys.topic(topic)
         if dispatch is None:
             dispatch = "inline" if policy == "all" else "loop"
-        inp = _Input(self, topic, key, topic_type(topic), handler, policy, capacity, dispatch)
+        inp = _Input(
+            self, topic, key, topic_type(topic), handler, policy, capacity, dispatch, with_payload
+        )
         self._inputs.append(inp)
         self.bus.subscribe(key, inp.on_payload)
         return inp
@@ -331,7 +338,10 @@ class Node:
                     exc,
                 )
                 return
-            self._call(item.topic, item.handler, message)
+            if item.with_payload:
+                self._call(item.topic, item.handler, message, payload)
+            else:
+                self._call(item.topic, item.handler, message)
             item.processed += 1
             item.last_processed_ns = time.monotonic_ns()
         else:

@@ -1,0 +1,255 @@
+"""``followbot record`` and ``followbot replay``.
+
+Record writes chosen topics to MCAP (the log format Foxglove and ROS 2 read): one channel per
+followbot topic, message encoding ``msgpack`` (the exact validated wire bytes), the message's
+JSON Schema as the channel schema (encoding ``jsonschema``), ``log_time`` = receive time (wall
+clock, ns), ``publish_time`` = the message's ``stamp_ns``. File metadata ``followbot`` holds the
+robot name, the followbot version and the schema version. See docs/recording.md.
+
+Replay republishes a followbot MCAP, a ROS 1 bag or a ROS 2 bag folder with the original
+timing (``--rate`` multiplier, ``--rate 0`` as fast as possible), remapping topics and
+converting ROS messages (followbot.bags).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["record_main", "replay_main"]
+
+
+def _node_settings(args: argparse.Namespace):
+    from followbot.services.runtime.session import overrides_from_args
+    from followbot.services.runtime.settings import NodeSettings, load_settings
+
+    return load_settings(NodeSettings, None, [*overrides_from_args(args), "log_level=warning"])
+
+
+def _progress(tty: bool, text: str) -> None:
+    sys.stderr.write(("\r" if tty else "") + text + ("" if tty else "\n"))
+    sys.stderr.flush()
+
+
+# ----------------------------------------------------------------------------- record
+
+
+def record_main(argv: list[str] | None = None) -> int:
+    from followbot.schemas import TOPICS
+    from followbot.services.runtime.session import SessionError, add_zenoh_arguments
+
+    p = argparse.ArgumentParser(
+        prog="followbot record",
+        description="Record followbot topics to an MCAP file (Ctrl-C or --duration stops).",
+    )
+    p.add_argument(
+        "topics",
+        nargs="*",
+        help="topics to record (default: every data topic; `followbot topics` lists them)",
+    )
+    p.add_argument("-o", "--output", default="recording.mcap", help="MCAP file to write")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    add_zenoh_arguments(p)
+    args = p.parse_args(argv)
+    topics = args.topics or list(TOPICS)
+    try:
+        settings = _node_settings(args)
+        from followbot.schemas import topic_type
+
+        for t in topics:
+            topic_type(t)
+    except ValueError as exc:
+        print(f"followbot record: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return _record(topics, Path(args.output), args.duration, settings)
+    except SessionError as exc:
+        print(f"followbot record: {exc}", file=sys.stderr)
+        return 1
+
+
+def _record(topics: list[str], output: Path, duration: float | None, settings) -> int:
+    from mcap.writer import Writer
+
+    import followbot
+    from followbot.schemas import SCHEMA_VERSION, topic_type
+    from followbot.schemas.export import message_schemas
+    from followbot.services.runtime.node import zenoh_node
+
+    defs = message_schemas()["$defs"]
+    counts = dict.fromkeys(topics, 0)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    tty = sys.stderr.isatty()
+    with output.open("wb") as f, zenoh_node("record", settings) as node:
+        writer = Writer(f)
+        writer.start(profile="", library=f"followbot {followbot.__version__}")
+        writer.add_metadata(
+            "followbot",
+            {
+                "robot": settings.robot,
+                "followbot_version": followbot.__version__,
+                "schema_version": str(SCHEMA_VERSION),
+            },
+        )
+        channels = {}
+        for t in topics:
+            name = topic_type(t).__name__
+            schema = {"$defs": defs, "$ref": f"#/$defs/{name}"}
+            sid = writer.register_schema(name, "jsonschema", json.dumps(schema).encode())
+            channels[t] = writer.register_channel(t, "msgpack", sid, {"key": node.keys.topic(t)})
+
+        def writer_for(topic: str):
+            channel = channels[topic]
+
+            def write(message, payload: bytes) -> None:
+                writer.add_message(
+                    channel,
+                    log_time=time.time_ns(),
+                    data=payload,
+                    publish_time=message.stamp_ns,
+                    sequence=counts[topic] & 0xFFFFFFFF,
+                )
+                counts[topic] += 1
+
+            return write
+
+        for t in topics:
+            node.subscribe(t, writer_for(t), with_payload=True)
+        t0 = time.monotonic()
+
+        def show() -> None:
+            total = sum(counts.values())
+            size = f.tell() / 2**20
+            _progress(tty, f"  recording {time.monotonic() - t0:6.1f} s  {total} messages  "
+                           f"{size:.1f} MiB")  # fmt: skip
+
+        node.every(1.0, show, name="progress")
+        print(f"recording {len(topics)} topics of robot '{settings.robot}' to {output}; "
+              "Ctrl-C stops", file=sys.stderr)  # fmt: skip
+        node.run(duration)
+        node.close()  # no more callbacks before the file is finished
+        writer.finish()
+    if tty:
+        sys.stderr.write("\n")
+    elapsed = time.monotonic() - t0
+    print(f"wrote {output} ({output.stat().st_size / 2**20:.2f} MiB, {elapsed:.1f} s)")
+    for t, n in counts.items():
+        if n:
+            print(f"  {t:<28} {n:>8} messages  {n / max(elapsed, 1e-9):8.1f} Hz")
+    silent = [t for t, n in counts.items() if not n]
+    if silent:
+        print(f"  no messages on: {', '.join(silent)}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- replay
+
+
+def replay_main(argv: list[str] | None = None) -> int:
+    from followbot.bags import RecordingError, open_recording, parse_remaps
+    from followbot.services.runtime.session import SessionError, add_zenoh_arguments
+
+    p = argparse.ArgumentParser(
+        prog="followbot replay",
+        description=(
+            "Republish a recording: a followbot .mcap, a ROS 1 .bag or a ROS 2 bag folder. "
+            "ROS LaserScan, Odometry, Image and CompressedImage are converted."
+        ),
+    )
+    p.add_argument("file", help="the recording")
+    p.add_argument(
+        "--rate", type=float, default=1.0,
+        help="speed multiplier of the original timing; 0 = as fast as possible (1)",
+    )  # fmt: skip
+    p.add_argument(
+        "--remap", action="append", default=[], metavar="SRC=DST",
+        help="feed source topic SRC to followbot topic DST, e.g. /scan=sensors/scan",
+    )  # fmt: skip
+    p.add_argument(
+        "--wait", type=float, default=5.0, metavar="S",
+        help="wait up to S seconds for a subscriber before starting (5)",
+    )  # fmt: skip
+    p.add_argument("--info", action="store_true", help="print what the file holds and exit")
+    add_zenoh_arguments(p)
+    args = p.parse_args(argv)
+    if args.rate < 0:
+        p.error("--rate must be >= 0")
+    try:
+        rec = open_recording(args.file, parse_remaps(args.remap))
+    except (RecordingError, ValueError) as exc:
+        print(f"followbot replay: {exc}", file=sys.stderr)
+        return 2
+    print(f"{rec.path} ({rec.kind}):", file=sys.stderr)
+    for src, (type_name, n) in sorted(rec.contents.items()):
+        dst = rec.mapping.get(src)
+        arrow = f"-> {dst}" if dst else "(not replayed)"
+        print(f"  {src:<28} {type_name:<32} {n:>7}  {arrow}", file=sys.stderr)
+    if args.info:
+        return 0
+    try:
+        return _replay(rec, args)
+    except SessionError as exc:
+        print(f"followbot replay: {exc}", file=sys.stderr)
+        return 1
+
+
+def _replay(rec, args: argparse.Namespace) -> int:
+    from followbot.bags import RecordingError
+    from followbot.services.runtime.node import zenoh_node
+
+    settings = _node_settings(args)
+    total = sum(n for src, (_, n) in rec.contents.items() if src in rec.mapping)
+    sent = 0
+    tty = sys.stderr.isatty()
+    with zenoh_node("replay", settings) as node:
+        # every sample matters in a replay: block rather than drop under congestion
+        pubs = {t: node.publisher(t, reliable=True) for t in set(rec.mapping.values())}
+        if args.wait > 0:
+            deadline = time.monotonic() + args.wait
+            while not any(p.matching() for p in pubs.values()) and time.monotonic() < deadline:
+                time.sleep(0.02)
+        t_wall0 = time.monotonic()
+        t_log0 = None
+        last_shown = 0.0
+        error = None
+        stop: list[int] = []
+        previous = {
+            sig: signal.signal(sig, lambda signum, _f: stop.append(signum))
+            for sig in (signal.SIGINT, signal.SIGTERM)
+        }
+        try:
+            for log_ns, topic, message in rec.messages():
+                if t_log0 is None:
+                    t_log0 = log_ns
+                if args.rate > 0:
+                    due = t_wall0 + (log_ns - t_log0) / 1e9 / args.rate
+                    while not stop and (delay := due - time.monotonic()) > 0:
+                        time.sleep(min(delay, 0.1))
+                if stop:
+                    error = "stopped by signal"
+                    break
+                pubs[topic].put(message)  # numbered afresh by the replay's publisher
+                sent += 1
+                now = time.monotonic()
+                if now - last_shown > 1.0:
+                    last_shown = now
+                    _progress(tty, f"  replayed {sent}/{total} messages")
+        except RecordingError as exc:
+            error = str(exc)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+    if tty:
+        sys.stderr.write("\n")
+    elapsed = time.monotonic() - t_wall0
+    print(f"replayed {sent} messages in {elapsed:.1f} s")
+    for reason, n in rec.skipped.most_common():
+        print(f"  skipped {n}: {reason}")
+    if error:
+        print(f"followbot replay: {error}", file=sys.stderr)
+        return 1
+    return 0
