@@ -106,6 +106,12 @@ def _cmd_replay(args: argparse.Namespace, rest: list[str]) -> int:
     return replay_main(rest)
 
 
+def _cmd_up(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.up import main
+
+    return main(rest)
+
+
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.bench import main
 
@@ -157,6 +163,13 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="run the live demo (options: `followbot demo --help`)", add_help=False
     )
     p.set_defaults(fn=_cmd_demo, passthrough=True)
+
+    p = sub.add_parser(
+        "up",
+        help="start and supervise a deployment from a compose file (`followbot up --help`)",
+        add_help=False,
+    )
+    p.set_defaults(fn=_cmd_up, passthrough=True)
 
     p = sub.add_parser(
         "record", help="record topics to MCAP (`followbot record --help`)", add_help=False

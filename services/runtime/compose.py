@@ -1,0 +1,175 @@
+"""Deployment files: which services run where, with which settings (docs/compose.md).
+
+A compose file is YAML, validated strictly (an unknown key is an error naming it)::
+
+    name: sim
+    robot: robot
+    preset: thesis                 # thesis | bellotto | livingston | ristic | zhuang
+    zenoh: {mode: peer}            # defaults for every service
+    hosts:                         # optional: per-machine zenoh settings
+      robot:    {zenoh: {listen: [tcp/0.0.0.0:7447]}}
+      offboard: {zenoh: {connect: [tcp/192.168.1.10:7447]}}
+    services:
+      sim:        {settings: {scenario: thesis_5_2_1_arc}, stop_all_on_exit: true}
+      laser_legs: {}
+      vision_verify: {host: offboard}
+      tracker:    {restart: always}
+
+Settings of a service are merged, lowest first: the preset's choices for it, the file's
+``zenoh``, its host's ``zenoh``, then the service's own ``settings``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import msgspec
+import yaml
+
+from .settings import _merge
+
+__all__ = [
+    "PRESETS",
+    "Compose",
+    "ComposeError",
+    "ServiceSpec",
+    "check_services",
+    "load_compose",
+    "service_settings",
+]
+
+#: The seed systems as swappable parts (DESIGN.md "Presets"): service -> settings.
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    "thesis": {  # seed 000
+        "laser_legs": {"detector": "thesis"},
+        "vision_verify": {"verifier": "histogram"},
+        "tracker": {"estimator": "particle"},
+    },
+    "bellotto": {  # seed 002
+        "laser_legs": {"detector": "bellotto"},
+        "vision_verify": {"verifier": "face"},
+        "tracker": {"estimator": "ukf"},
+    },
+    "livingston": {  # seed 003
+        "laser_legs": {"detector": "iav"},
+        "vision_verify": {"verifier": "meanshift"},
+        "tracker": {"estimator": "nearest"},
+    },
+    "ristic": {  # seed 004
+        "laser_legs": {"detector": "derivative"},
+        "vision_verify": {"verifier": "histogram"},
+        "tracker": {"estimator": "kalman_window"},
+    },
+}
+
+_NAME = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_\-]{1,64}$")]
+
+
+class ComposeError(ValueError):
+    """A compose file that cannot be used; the message names the file and the field."""
+
+
+class HostSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    zenoh: dict[str, Any] = {}
+
+
+class ServiceSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    service: str | None = None
+    """The service to run (`followbot services`); defaults to the entry's name, so one service
+    can run twice under two names."""
+    host: _NAME = "local"
+    settings: dict[str, Any] = {}
+    restart: Literal["on-failure", "always", "never"] = "on-failure"
+    stop_all_on_exit: bool = False
+    """When this service exits 0 (e.g. the simulator at the scenario's end), stop everything."""
+
+
+class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    name: str = "followbot"
+    robot: _NAME = "robot"
+    preset: Literal["thesis", "bellotto", "livingston", "ristic", "zhuang"] | None = None
+    zenoh: dict[str, Any] = {}
+    hosts: dict[_NAME, HostSpec] = {}
+    services: Annotated[dict[_NAME, ServiceSpec], msgspec.Meta(min_length=1)]
+    path: str = ""
+    """Where the file was read from (set by load_compose)."""
+
+    def hosts_named(self) -> list[str]:
+        return sorted({s.host for s in self.services.values()})
+
+
+def load_compose(path: str | Path) -> Compose:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ComposeError(f"cannot read compose file {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ComposeError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ComposeError(f"{path}: expected a mapping with a 'services' section")
+    # Entries of the services and hosts maps first, one by one, so an error names the entry.
+    for section, spec_type in (("services", ServiceSpec), ("hosts", HostSpec)):
+        entries = data.get(section)
+        if isinstance(entries, dict):
+            for key, entry in entries.items():
+                if entry is None:
+                    entries[key] = entry = {}
+                _convert(path, entry, spec_type, f"{section}.{key}")
+    compose = _convert(path, data, Compose, "")
+    compose.path = str(path)
+    if compose.preset == "zhuang":
+        raise ComposeError(
+            f"{path}: preset: 'zhuang' (seed 001: colour blobs from the camera alone, hybrid "
+            "PF + KF) is not implemented; choose thesis, bellotto, livingston or ristic"
+        )
+    for name, spec in compose.services.items():
+        if spec.host != "local" and compose.hosts and spec.host not in compose.hosts:
+            raise ComposeError(
+                f"{path}: services.{name}.host: unknown host {spec.host!r}; "
+                f"hosts: {', '.join(sorted(compose.hosts))}"
+            )
+    return compose
+
+
+def _convert(path: Path, data: Any, type_: type, where: str):
+    try:
+        return msgspec.convert(data, type_)
+    except msgspec.ValidationError as exc:
+        text = str(exc)
+        head, sep, at = text.rpartition(" - at `$")
+        field = ".".join(p for p in (where, at.rstrip("`").lstrip(".") if sep else "") if p)
+        raise ComposeError(
+            f"{path}: {field + ': ' if field else ''}{head if sep else text}"
+        ) from None
+
+
+def service_settings(compose: Compose, name: str) -> dict[str, Any]:
+    """The settings mapping one service is started with."""
+    spec = compose.services[name]
+    service = spec.service or name
+    out: dict[str, Any] = {"robot": compose.robot}
+    if compose.preset:
+        _merge(out, dict(PRESETS[compose.preset].get(service, {})))
+    _merge(out, {"zenoh": dict(compose.zenoh)} if compose.zenoh else {})
+    host = compose.hosts.get(spec.host)
+    if host is not None and host.zenoh:
+        _merge(out, {"zenoh": dict(host.zenoh)})
+    _merge(out, _deep_copy(spec.settings))
+    return out
+
+
+def check_services(compose: Compose, available: list[str]) -> None:
+    """Every service named must be installed."""
+    for name, spec in compose.services.items():
+        service = spec.service or name
+        if service not in available:
+            raise ComposeError(
+                f"{compose.path}: services.{name}: unknown service {service!r}; "
+                f"installed: {', '.join(available)}"
+            )
+
+
+def _deep_copy(d: dict[str, Any]) -> dict[str, Any]:
+    return msgspec.convert(msgspec.to_builtins(d), dict[str, Any])

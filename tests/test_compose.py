@@ -1,0 +1,170 @@
+"""Compose files and `followbot up`: validation, supervision, restart, clean stop."""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import REPO
+
+from followbot.services.runtime.compose import (
+    ComposeError,
+    check_services,
+    load_compose,
+    service_settings,
+)
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "c.yaml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("services: {}\n", "services: Expected `object` of length >= 1"),
+        ("servics: {a: {}}\n", "unknown field `servics`"),
+        ("services: {a: {restart: sometimes}}\n", "services.a.restart"),
+        ("services: {a: {hots: x}}\n", "unknown field `hots`"),
+        ("preset: tesis\nservices: {a: {}}\n", "preset"),
+        ("preset: zhuang\nservices: {a: {}}\n", "not implemented"),
+        ("hosts: {robot: {}}\nservices: {a: {host: robt}}\n", "unknown host 'robt'"),
+        ("robot: 'a b'\nservices: {a: {}}\n", "robot"),
+        ("- just\n- a list\n", "expected a mapping"),
+        ("services: [\n", "not valid YAML"),
+    ],
+)
+def test_bad_compose_files_name_the_field(tmp_path, text, message):
+    with pytest.raises(ComposeError, match=re.escape(message)):
+        load_compose(write(tmp_path, text))
+
+
+def test_settings_merge_preset_zenoh_host_and_service(tmp_path):
+    c = load_compose(write(tmp_path, """
+robot: r9
+preset: thesis
+zenoh: {mode: peer, lease_ms: 2000}
+hosts:
+  offboard: {zenoh: {connect: [tcp/10.0.0.1:7447]}}
+services:
+  laser_legs: {settings: {detector: arc}}
+  vision_verify: {host: offboard, settings: {zenoh: {lease_ms: 3000}}}
+"""))  # fmt: skip
+    legs = service_settings(c, "laser_legs")
+    assert legs["robot"] == "r9" and legs["detector"] == "arc"  # the service's own wins
+    assert legs["zenoh"] == {"mode": "peer", "lease_ms": 2000}
+    vision = service_settings(c, "vision_verify")
+    assert vision["verifier"] == "histogram"  # from the preset
+    assert vision["zenoh"] == {"mode": "peer", "lease_ms": 3000, "connect": ["tcp/10.0.0.1:7447"]}
+
+
+def test_unknown_services_are_refused_with_the_installed_list(tmp_path):
+    c = load_compose(write(tmp_path, "services: {tracker2: {}}\n"))
+    with pytest.raises(ComposeError, match="unknown service 'tracker2'; installed: a, b"):
+        check_services(c, ["a", "b"])
+
+
+def test_shipped_compose_files_are_valid():
+    for path in sorted((REPO / "compose").glob("*.yaml")):
+        out = subprocess.run(
+            [sys.executable, "-m", "followbot", "up", str(path), "--check"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert out.returncode == 0, f"{path.name}: {out.stderr}"
+
+
+def test_bad_settings_of_a_service_stop_up_before_anything_starts(tmp_path):
+    path = write(tmp_path, "services: {monitor: {settings: {topicz: [a]}}}\n")
+    out = subprocess.run(
+        [sys.executable, "-m", "followbot", "up", str(path), "--log-dir", str(tmp_path)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 2
+    assert "services.monitor" in out.stderr and "topicz" in out.stderr
+
+
+class Up:
+    def __init__(self, compose: Path, log_dir: Path, *extra: str) -> None:
+        self.lines: list[str] = []
+        self.p = subprocess.Popen(
+            [sys.executable, "-m", "followbot", "up", str(compose), "--log-dir", str(log_dir),
+             *extra],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
+
+    def close(self) -> None:
+        self.p.kill()
+        self.p.wait()
+        self.p.stdout.close()
+
+    def expect(self, pattern: str, timeout: float = 20) -> re.Match:
+        deadline = time.monotonic() + timeout
+        rx = re.compile(pattern)
+        for line in self.p.stdout:
+            self.lines.append(line)
+            m = rx.search(line)
+            if m:
+                return m
+            if time.monotonic() > deadline:
+                break
+        raise AssertionError(f"{pattern!r} not seen:\n{''.join(self.lines)}")
+
+
+@pytest.mark.multiprocess
+def test_up_supervises_restarts_and_stops_cleanly(tmp_path, endpoint, robot):
+    compose = write(tmp_path, f"""
+robot: {robot}
+hosts:
+  a: {{zenoh: {{listen: ["{endpoint}"]}}}}
+  b: {{zenoh: {{connect: ["{endpoint}"]}}}}
+services:
+  monitor: {{host: a, settings: {{report_period_s: 0.3}}}}
+  synthetic: {{host: b, settings: {{scan_rate_hz: 50}}}}
+""")  # fmt: skip
+    up = Up(compose, tmp_path / "logs")
+    try:
+        pid = int(up.expect(r"started monitor \(pid (\d+)\)").group(1))
+        up.expect(r"^monitor\s+\| .*sensors/scan: \d+ received, [1-9]")
+        # a crash is restarted with backoff
+        subprocess.run(["kill", "-9", str(pid)], check=True)
+        up.expect(r"monitor exited -9; restarting in 1 s")
+        up.expect(r"started monitor \(pid (\d+)\)")
+        up.expect(r"^monitor\s+\| .*sensors/scan: \d+ received, [1-9]")
+        up.p.send_signal(signal.SIGINT)
+        assert up.p.wait(15) == 0
+        rest = up.p.stdout.read()
+        assert "monitor stopped" in rest and "synthetic stopped" in rest
+        assert (tmp_path / "logs" / "monitor.log").read_text().count("monitor up") == 2
+    finally:
+        up.close()
+
+
+@pytest.mark.multiprocess
+def test_up_host_starts_only_that_hosts_services(tmp_path, robot):
+    compose = write(tmp_path, f"""
+robot: {robot}
+hosts: {{a: {{}}, b: {{}}}}
+services:
+  monitor: {{host: a}}
+  synthetic: {{host: b, settings: {{count: 20, scan_rate_hz: 200}}, stop_all_on_exit: true}}
+""")  # fmt: skip
+    up = Up(compose, tmp_path / "logs", "--host", "b")
+    try:
+        up.expect(r"started synthetic")
+        up.expect(r"synthetic finished; stopping everything")
+        assert up.p.wait(15) == 0
+        assert not any("started monitor" in line for line in up.lines)
+    finally:
+        up.close()
+    out = subprocess.run(
+        [sys.executable, "-m", "followbot", "up", str(compose), "--host", "c"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 2 and "hosts: a, b" in out.stderr
