@@ -328,6 +328,8 @@ class TargetModel(Message, tag="target_model", kw_only=True):
     image_width: Annotated[int, msgspec.Meta(ge=1, le=MAX_IMAGE_SIDE)]
     image_height: Annotated[int, msgspec.Meta(ge=1, le=MAX_IMAGE_SIDE)]
     features: Annotated[dict[Name, Array], msgspec.Meta(max_length=16)] = {}
+    pan_rad: Angle = 0.0
+    """Camera pan when the model was learnt (with x_m, y_m it gives the model's depth)."""
 
     def __post_init__(self) -> None:
         for name, arr in self.features.items():

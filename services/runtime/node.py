@@ -146,6 +146,11 @@ class TypedPublisher(Generic[M]):
         """Whether any subscriber currently listens to this topic."""
         return self._raw.matching()
 
+    def serve(self, message: M | None) -> None:
+        """Answer queries with ``message`` from now on without publishing it (None: stop
+        answering), e.g. a model adopted from another worker, or one that was dropped."""
+        self.last_payload = None if message is None else encode(message)
+
     def put(self, message: M) -> bytes:
         """Encode and publish; sets ``message.seq`` to this publisher's count. Returns payload."""
         if not isinstance(message, self.message_type):
@@ -236,6 +241,14 @@ class Node:
             raise ValueError("period_s must be > 0")
         period_ns = int(period_s * 1e9)
         self._timers.append([time.monotonic_ns() + period_ns, period_ns, fn, name or fn.__name__])
+
+    def reject(self, inp: _Input, reason: str) -> None:
+        """Count a message the service itself refuses (valid on the wire, unusable for it, e.g.
+        an image of the wrong size) in ``Health.rejected[topic]``, with a rate-limited log."""
+        inp.rejected += 1
+        self._ratelog.log(
+            logging.WARNING, f"reject:{inp.topic}:{reason}", "rejected %s: %s", inp.topic, reason
+        )
 
     def wait_for_subscribers(self, publisher: TypedPublisher, timeout_s: float) -> bool:
         """Block until ``publisher`` has a subscriber, ``timeout_s`` passes or the node stops."""

@@ -1,0 +1,498 @@
+"""Which laser candidate is the target, by appearance: histograms, geometry, choice (no Zenoh).
+
+DESIGN.md "Target model" and "Verification" (thesis 3.3.1, 3.5, 4.2.1, 4.4):
+
+Colour (thesis 3.3.1.1, 4.2.1.2). HSV on OpenCV's scale (H in [0, 180), S, V in [0, 255]).
+A pixel with V < 51 or S < 51 has no perceivable hue and goes to one of NV = 8 brightness bins
+(by V); every other pixel to one of NH x NS = 10 x 10 hue-saturation bins. The rectangle is cut
+into an upper and a lower half; each half gets its own 108-bin histogram
+
+    half = [HS bins (10 x 10, row-major by hue), V bins (8)],   normalised to sum 1,
+
+and the colour histogram is ``0.5 * [upper, lower]`` (216 bins summing to 1).
+
+Edges (thesis 3.3.1.2, 4.2.1.3). Sobel Gx, Gy on the intensity image,
+M = sqrt(Gx^2 + Gy^2), phi = atan2(Gy, Gx) in [0, 360) deg; pixels with M > 0.4 max(M) vote
+into 72 bins of 5 deg; normalised to sum 1 (all zero when the patch has no edge at all).
+
+Distance (thesis eq. 3-22, 3-23). Bhattacharyya d(p, q) = sqrt(1 - sum_i sqrt(p_i q_i)) via
+``cv2.compareHist(..., HISTCMP_BHATTACHARYYA)`` on float32 histograms (identical for
+normalised ones); d_image = d_colour + d_edge in [0, 2]. An empty histogram is at distance 1.
+
+Rectangles (thesis 3.5.1, eq. 3-18..3-21). A candidate at (x, y) in the laser frame is moved
+into the camera frame: subtract the camera's offset on the robot, rotate by minus the pan angle
+the image carries,
+
+    x_c = cos(pan) dx + sin(pan) dy,    y_c = -sin(pan) dx + cos(pan) dy,
+
+then the rectangle has centre u = c_x - f y_c / x_c, v = c_y (the model rectangle is centred on
+the image's horizontal centre line, so every rectangle is), and size w = w_model d_model / x_c,
+h = h_model d_model / x_c, d_model being the model's depth x_c when it was learnt. A candidate
+with x_c below ``min_depth_m`` (behind the camera, or at it) or whose centre column falls
+outside the image is not judged (thesis 4.4.3: the centre decides whether it is in view).
+
+Choice (thesis 3.5.3): the smallest distance wins. Unlike the thesis, a rejection threshold
+may refuse every candidate (``chosen = -1``), so a bystander is not taken for an occluded
+target. Optional slow online update of the model (the thesis's first item of future work):
+blend the chosen candidate's histograms into the model when the match is confident.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Annotated, Literal, Protocol, runtime_checkable
+
+import cv2
+import msgspec
+import numpy as np
+
+from followbot.schemas import Array, TargetModel
+
+__all__ = [
+    "COLOUR_BINS",
+    "EDGE_BINS",
+    "Camera",
+    "ImageFeatures",
+    "Judgement",
+    "Model",
+    "Rect",
+    "Verifier",
+    "View",
+    "adapt_features",
+    "bhattacharyya",
+    "blend",
+    "choose",
+    "colour_histogram",
+    "confident",
+    "edge_histogram",
+    "judge",
+    "project",
+]
+
+# thesis 4.2.1.2: NH = NS = 10 colour bins, NV = 8 brightness bins, thresholds 51 of 255
+N_HUE, N_SAT, N_VAL = 10, 10, 8
+SV_MIN = 51
+HALF_BINS = N_HUE * N_SAT + N_VAL  # 108
+COLOUR_BINS = 2 * HALF_BINS  # 216
+# thesis 4.2.1.3: 72 bins of 5 deg, strong edges only (> 0.4 of the largest magnitude)
+EDGE_BINS = 72
+EDGE_FRACTION = 0.4
+
+#: Axis-aligned pixel rectangle ``(x0, y0, x1, y1)``, half-open: columns x0..x1-1.
+Rect = tuple[int, int, int, int]
+
+ViewStatus = Literal["ok", "invalid", "behind", "out_of_view", "too_small", "too_large"]
+
+
+# --------------------------------------------------------------------------- camera
+
+
+class Camera(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Intrinsics and extrinsics of one camera (one ``intrinsics_id`` of the Image message).
+
+    The camera sits at (``offset_x_m``, ``offset_y_m``) in the laser frame (its pan axis),
+    ``height_m`` above the floor, looking horizontally along the laser's +x turned by the pan
+    angle the image carries.
+    """
+
+    width: Annotated[int, msgspec.Meta(ge=16, le=4096)] = 320
+    height: Annotated[int, msgspec.Meta(ge=16, le=4096)] = 240
+    hfov_deg: Annotated[float, msgspec.Meta(gt=1.0, lt=170.0)] = 47.5
+    """Horizontal field of view; gives the focal length unless ``focal_px`` is set
+    (thesis 3.5.1.1: 47.5 deg at 320 px, f = 160 / tan(23.75 deg) ~ 363 px)."""
+    focal_px: Annotated[float, msgspec.Meta(gt=0.0, le=1e5)] | None = None
+    cx_px: float | None = None
+    """Principal point column (default width / 2)."""
+    cy_px: float | None = None
+    """Principal point row (default height / 2)."""
+    offset_x_m: float = 0.0
+    offset_y_m: float = 0.0
+    height_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.0
+    min_depth_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.3
+    """Candidates nearer than this along the optical axis (or behind the camera) are skipped."""
+
+    @property
+    def f(self) -> float:
+        if self.focal_px is not None:
+            return self.focal_px
+        return (self.width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+
+    @property
+    def cx(self) -> float:
+        return self.width / 2.0 if self.cx_px is None else self.cx_px
+
+    @property
+    def cy(self) -> float:
+        return self.height / 2.0 if self.cy_px is None else self.cy_px
+
+    def to_camera(self, x_m: np.ndarray, y_m: np.ndarray, pan_rad: float):
+        """Laser-frame points to the camera frame (x_c forward along the optical axis, y_c left)."""
+        dx = np.asarray(x_m, dtype=np.float64) - self.offset_x_m
+        dy = np.asarray(y_m, dtype=np.float64) - self.offset_y_m
+        c, s = math.cos(pan_rad), math.sin(pan_rad)
+        return c * dx + s * dy, -s * dx + c * dy
+
+    def column(self, x_c, y_c):
+        """Image column of a camera-frame point (thesis eq. 3-18): u = c_x - f y_c / x_c."""
+        return self.cx - self.f * y_c / x_c
+
+    def bearing(self, u_px):
+        """Camera-frame bearing of an image column (seed 002 eq. 1): atan((c_x - u) / f)."""
+        return np.arctan((self.cx - np.asarray(u_px, dtype=np.float64)) / self.f)
+
+    def elevation(self, v_px):
+        """Elevation below the optical axis of an image row (seed 002 eq. 1): atan((v - c_y)/f)."""
+        return np.arctan((np.asarray(v_px, dtype=np.float64) - self.cy) / self.f)
+
+
+class View(msgspec.Struct, kw_only=True):
+    """One candidate as the camera sees it."""
+
+    index: int
+    x_m: float
+    y_m: float
+    depth_m: float = math.nan
+    """Camera-frame x_c (along the optical axis)."""
+    lateral_m: float = math.nan
+    """Camera-frame y_c (left of the optical axis)."""
+    u_px: float = math.nan
+    rect: Rect | None = None
+    status: ViewStatus = "ok"
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+def project(
+    camera: Camera,
+    xy_m: np.ndarray,
+    pan_rad: float,
+    rect_w_px: float,
+    rect_h_px: float,
+    model_depth_m: float,
+    *,
+    min_side_px: int = 8,
+    max_width_factor: float = 3.0,
+) -> list[View]:
+    """Rectangles of candidates ``xy_m`` (N x 2, laser frame) in an image taken at ``pan_rad``.
+
+    ``rect_w_px`` x ``rect_h_px`` is the model's rectangle, learnt at depth ``model_depth_m``.
+    A rectangle wider than ``max_width_factor`` image widths (a candidate almost at the lens) is
+    ``too_large``; one whose clipped sides are shorter than ``min_side_px`` is ``too_small``.
+    """
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    views: list[View] = []
+    if xy.shape[0] == 0:
+        return views
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        xc, yc = camera.to_camera(xy[:, 0], xy[:, 1], pan_rad)
+        u = camera.column(xc, yc)
+        scale = model_depth_m / xc
+    w, h = rect_w_px * scale, rect_h_px * scale
+    cy, width, height = camera.cy, camera.width, camera.height
+    finite = np.isfinite(xy).all(axis=1)
+    for i in range(xy.shape[0]):
+        v = View(index=i, x_m=float(xy[i, 0]), y_m=float(xy[i, 1]))
+        views.append(v)
+        if not finite[i]:
+            v.status = "invalid"
+            continue
+        v.depth_m, v.lateral_m = float(xc[i]), float(yc[i])
+        if not xc[i] >= camera.min_depth_m:
+            v.status = "behind"
+            continue
+        v.u_px = float(u[i])
+        if not 0.0 <= u[i] < width:
+            v.status = "out_of_view"
+            continue
+        if not w[i] <= max_width_factor * width:
+            v.status = "too_large"
+            continue
+        x0 = max(0, round(u[i] - w[i] / 2))
+        x1 = min(width, round(u[i] + w[i] / 2))
+        y0 = max(0, round(cy - h[i] / 2))
+        y1 = min(height, round(cy + h[i] / 2))
+        if x1 - x0 < min_side_px or y1 - y0 < min_side_px:
+            v.status = "too_small"
+            continue
+        v.rect = (int(x0), int(y0), int(x1), int(y1))
+    return views
+
+
+def clip_rect(rect: Rect, width: int, height: int) -> Rect | None:
+    """``rect`` clipped to a ``width`` x ``height`` image; None when under 2 px is left."""
+    x0, y0, x1, y1 = rect
+    x0, y0 = max(0, int(x0)), max(0, int(y0))
+    x1, y1 = min(width, int(x1)), min(height, int(y1))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return (x0, y0, x1, y1)
+
+
+# --------------------------------------------------------------------------- histograms
+
+
+class ImageFeatures:
+    """Per-image work shared by every rectangle of one frame, computed once and lazily.
+
+    Colour conversion, the colour mask and the Sobel gradients are computed over the whole
+    frame once; each rectangle then costs only its ``calcHist`` calls. (At a rectangle's border
+    the gradients use the real neighbouring pixels rather than a reflected border.)
+    """
+
+    def __init__(self, bgr: np.ndarray) -> None:
+        if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.dtype != np.uint8:
+            raise ValueError(f"expected HxWx3 uint8 BGR pixels, got {bgr.dtype} {bgr.shape}")
+        self.bgr = bgr
+        self.height, self.width = bgr.shape[:2]
+        self._hsv: np.ndarray | None = None
+        self._colour: np.ndarray | None = None
+        self._dark: np.ndarray | None = None
+        self._grey: np.ndarray | None = None
+        self._mag: np.ndarray | None = None
+        self._ang: np.ndarray | None = None
+        self.cache: dict[str, object] = {}
+        """Per-frame results of a verifier (detections, back-projections), by its own keys."""
+
+    def hsv(self) -> np.ndarray:
+        if self._hsv is None:
+            self._hsv = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2HSV)
+            # thesis 4.2.1.2: S >= 51 and V >= 51 -> colour bins; otherwise brightness bins
+            self._colour = cv2.inRange(self._hsv, (0, SV_MIN, SV_MIN), (255, 255, 255))
+            self._dark = cv2.bitwise_not(self._colour)
+        return self._hsv
+
+    def grey(self) -> np.ndarray:
+        if self._grey is None:
+            self._grey = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2GRAY)
+        return self._grey
+
+    def gradients(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._mag is None:
+            grey = self.grey()
+            gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)  # thesis 3.3.1.2: S_x
+            gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)  # thesis 3.3.1.2: S_y
+            # eq. 3-4 and 3-5: magnitude and orientation, the latter mapped to [0, 360) deg
+            self._mag, self._ang = cv2.cartToPolar(gx, gy, angleInDegrees=True)
+        return self._mag, self._ang
+
+    def colour(self, rect: Rect) -> np.ndarray:
+        """216-bin HS colour histogram of ``rect`` (float32, sums to 1)."""
+        hsv = self.hsv()
+        x0, y0, x1, y1 = rect
+        mid = (y0 + y1) // 2
+        out = np.zeros(COLOUR_BINS, dtype=np.float32)
+        for k, (a, b) in enumerate(((y0, mid), (mid, y1))):
+            if b <= a:
+                continue
+            part = hsv[a:b, x0:x1]
+            seg = out[k * HALF_BINS : (k + 1) * HALF_BINS]
+            hs = cv2.calcHist(
+                [part], [0, 1], self._colour[a:b, x0:x1], [N_HUE, N_SAT], [0, 180, 0, 256]
+            )
+            val = cv2.calcHist([part], [2], self._dark[a:b, x0:x1], [N_VAL], [0, 256])
+            seg[: N_HUE * N_SAT] = hs.ravel()
+            seg[N_HUE * N_SAT :] = val.ravel()
+            total = float(seg.sum())
+            if total > 0:
+                seg *= 0.5 / total  # each half sums to 1, then both scaled by 0.5
+        return out
+
+    def edges(self, rect: Rect) -> np.ndarray:
+        """72-bin edge-orientation histogram of ``rect`` (float32, sums to 1 or all zero)."""
+        mag, ang = self.gradients()
+        x0, y0, x1, y1 = rect
+        m = mag[y0:y1, x0:x1]
+        peak = float(m.max()) if m.size else 0.0
+        if peak <= 0.0:
+            return np.zeros(EDGE_BINS, dtype=np.float32)
+        mask = (m > EDGE_FRACTION * peak).view(np.uint8)  # eq. 4-3: 0.4 Mag_max
+        hist = cv2.calcHist([ang[y0:y1, x0:x1]], [0], mask, [EDGE_BINS], [0, 360]).ravel()
+        total = float(hist.sum())
+        return hist / total if total > 0 else hist
+
+    def histograms(self, rect: Rect) -> dict[str, np.ndarray]:
+        return {"colour_hs": self.colour(rect), "edge_orientation": self.edges(rect)}
+
+
+def colour_histogram(bgr: np.ndarray) -> np.ndarray:
+    """216-bin HS colour histogram of a whole BGR patch."""
+    return ImageFeatures(bgr).colour((0, 0, bgr.shape[1], bgr.shape[0]))
+
+
+def edge_histogram(bgr: np.ndarray) -> np.ndarray:
+    """72-bin edge-orientation histogram of a whole BGR patch."""
+    return ImageFeatures(bgr).edges((0, 0, bgr.shape[1], bgr.shape[0]))
+
+
+def bhattacharyya(p: np.ndarray, q: np.ndarray) -> float:
+    """sqrt(1 - sum sqrt(p q)) for normalised histograms (eq. 3-22); 1 if either is empty."""
+    if p.shape != q.shape:
+        raise ValueError(f"histograms differ in shape: {p.shape} vs {q.shape}")
+    p = np.ascontiguousarray(p, dtype=np.float32)
+    q = np.ascontiguousarray(q, dtype=np.float32)
+    if not (p.sum() > 0 and q.sum() > 0):
+        return 1.0
+    d = cv2.compareHist(p, q, cv2.HISTCMP_BHATTACHARYYA)
+    return min(1.0, max(0.0, float(d)))
+
+
+# --------------------------------------------------------------------------- model
+
+
+class Model(msgspec.Struct, kw_only=True):
+    """The target model as the verifiers use it (the wire form is :class:`TargetModel`)."""
+
+    model_id: int
+    verifier: str
+    x_m: float
+    y_m: float
+    """Laser position when learnt (x_model, y_model)."""
+    depth_m: float
+    """Camera-frame depth when learnt (the d_model of the rectangle's scale)."""
+    rect_w_px: float
+    rect_h_px: float
+    image_width: int
+    image_height: int
+    features: dict[str, np.ndarray]
+    pan_rad: float = 0.0
+    stamp_ns: int = 0
+
+    def to_message(self) -> TargetModel:
+        feats = {k: Array.from_numpy(np.ascontiguousarray(v)) for k, v in self.features.items()}
+        return TargetModel(
+            stamp_ns=self.stamp_ns,
+            frame_id="base_laser",
+            model_id=self.model_id,
+            verifier=self.verifier,
+            x_m=self.x_m,
+            y_m=self.y_m,
+            rect_width_px=self.rect_w_px,
+            rect_height_px=self.rect_h_px,
+            image_width=self.image_width,
+            image_height=self.image_height,
+            features=feats,
+            pan_rad=self.pan_rad,
+        )
+
+    @classmethod
+    def from_message(cls, msg: TargetModel, camera: Camera) -> Model:
+        feats = {k: np.array(a.numpy(), dtype=np.float32) for k, a in msg.features.items()}
+        pan_rad = msg.pan_rad
+        depth, _ = camera.to_camera(np.array(msg.x_m), np.array(msg.y_m), pan_rad)
+        depth = float(depth)
+        if not depth >= camera.min_depth_m:
+            raise ValueError(f"model position ({msg.x_m}, {msg.y_m}) is not in front of the camera")
+        return cls(
+            model_id=msg.model_id,
+            verifier=msg.verifier,
+            x_m=msg.x_m,
+            y_m=msg.y_m,
+            depth_m=depth,
+            rect_w_px=msg.rect_width_px,
+            rect_h_px=msg.rect_height_px,
+            image_width=msg.image_width,
+            image_height=msg.image_height,
+            features=feats,
+            pan_rad=pan_rad,
+            stamp_ns=msg.stamp_ns,
+        )
+
+
+@runtime_checkable
+class Verifier(Protocol):
+    """What every verifier plugin offers (entry-point group ``followbot.verifiers``).
+
+    ``learn`` describes the target in the model rectangle; ``distances`` judges the candidates'
+    views of one frame against the model (None for views not judged); ``describe`` gives the
+    features of one rectangle, for the online update (None: the verifier does not adapt).
+    """
+
+    name: str
+
+    def learn(self, frame: ImageFeatures, rect: Rect, view: View) -> dict[str, np.ndarray]: ...
+
+    def distances(
+        self, frame: ImageFeatures, views: Sequence[View], model: Model
+    ) -> list[float | None]: ...
+
+    def describe(self, frame: ImageFeatures, rect: Rect) -> dict[str, np.ndarray] | None: ...
+
+
+class Judgement(msgspec.Struct, kw_only=True):
+    views: list[View]
+    distances: list[float | None]
+    chosen: int
+    """Index into ``views`` of the target, or -1."""
+
+
+def choose(distances: Sequence[float | None], threshold: float | None) -> int:
+    """Index of the smallest distance (eq. 3-23); -1 if none, or if it exceeds ``threshold``."""
+    best, best_d = -1, math.inf
+    for i, d in enumerate(distances):
+        if d is not None and d < best_d:
+            best, best_d = i, d
+    if best >= 0 and threshold is not None and best_d > threshold:
+        return -1
+    return best
+
+
+def judge(
+    verifier: Verifier,
+    frame: ImageFeatures,
+    camera: Camera,
+    model: Model,
+    xy_m: np.ndarray,
+    pan_rad: float,
+    threshold: float | None,
+    **project_kw,
+) -> Judgement:
+    """Project every candidate, let the verifier judge those in view, choose the target."""
+    views = project(
+        camera, xy_m, pan_rad, model.rect_w_px, model.rect_h_px, model.depth_m, **project_kw
+    )
+    frame.cache["camera"] = camera
+    distances = verifier.distances(frame, views, model)
+    if len(distances) != len(views):
+        raise ValueError(f"{verifier.name} gave {len(distances)} distances for {len(views)} views")
+    distances = [
+        d if (v.ok and d is not None and math.isfinite(d)) else None
+        for v, d in zip(views, distances, strict=True)
+    ]
+    return Judgement(views=views, distances=distances, chosen=choose(distances, threshold))
+
+
+# --------------------------------------------------------------------------- online update
+
+
+def confident(
+    distances: Sequence[float | None], chosen: int, max_distance: float, min_margin: float
+) -> bool:
+    """Whether the chosen match is sure enough to learn from: close to the model, and clearly
+    closer than every other candidate judged."""
+    if chosen < 0 or distances[chosen] is None or distances[chosen] > max_distance:
+        return False
+    others = [d for i, d in enumerate(distances) if i != chosen and d is not None]
+    return not others or min(others) - distances[chosen] >= min_margin
+
+
+def blend(model: np.ndarray, seen: np.ndarray, rate: float) -> np.ndarray:
+    """(1 - rate) model + rate seen, renormalised to the model's sum (a slow exponential update)."""
+    out = (1.0 - rate) * model.astype(np.float32) + rate * seen.astype(np.float32)
+    total, want = float(out.sum()), float(model.sum())
+    if total > 0 and want > 0:
+        out *= want / total
+    return out.astype(np.float32)
+
+
+def adapt_features(
+    features: dict[str, np.ndarray], seen: dict[str, np.ndarray], rate: float
+) -> dict[str, np.ndarray]:
+    """Blend every feature present in both; keep the others."""
+    out = dict(features)
+    for k, v in seen.items():
+        if k in out and out[k].shape == v.shape and v.sum() > 0:
+            out[k] = blend(out[k], v, rate)
+    return out

@@ -1,0 +1,412 @@
+"""Evaluation of the verifiers in the simulator, and of the histograms on real footage.
+
+    python -m followbot.services.vision_verify.evaluate sim [--verifier NAME ...] [--json FILE]
+    python -m followbot.services.vision_verify.evaluate vtest PATH/TO/vtest.avi
+
+``sim``: the two-person scenario of thesis 5.2.4 (and its "person 2" variant, the same run with
+the other person as the target). The robot stands still until the model is built from frame
+and laser differencing (thesis 4.2); then a follower driven by ground truth (thesis 3.7 rules:
+turn beyond 6 deg, stop within 1.2 m, pan = heading) keeps the target in front, so the verifier
+sees what it would see behind a perfect tracker. Each scan goes through the thesis leg detector
+(ranges unclipped), is paired with the nearest image (within 60 ms), and every verifier judges
+the same candidates. A candidate is the target's (a bystander's) when it lies within 0.5 m of
+that person's true position.
+
+Figures per verifier (``target_in_view`` scans: the target is visible to the camera and one
+of its candidates projects into the image):
+
+* ``correct_share``: chosen candidate is the target's, / target_in_view scans;
+* ``wrong_share`` / ``rejected_share``: another candidate chosen / nothing chosen;
+* ``bystander_choices_hidden``: while the target is not in view and some other candidate is,
+  scans where another candidate is chosen (with the rejection threshold, and without).
+
+``vtest``: OpenCV's pedestrian clip (Debian's opencv-doc, examples/data/vtest.avi). People are
+boxed by frame differencing (the thesis's smoothing and threshold, then connected blobs), each
+box is tracked to the next frame by overlap, and the histogram distance is reported for the
+same pedestrian one frame later versus different pedestrians in the same frame, with timings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import msgspec
+import numpy as np
+
+__all__ = ["SimScore", "evaluate_sim", "evaluate_vtest", "main"]
+
+_NS = 1_000_000_000
+
+
+@dataclass
+class SimScore:
+    verifier: str
+    scenario: str
+    threshold: float | None
+    model_built_s: float | None = None
+    scans: int = 0
+    scans_judged: int = 0
+    target_in_view: int = 0
+    correct: int = 0
+    wrong: int = 0
+    rejected: int = 0
+    correct_no_threshold: int = 0
+    hidden_with_others: int = 0
+    bystander_hidden: int = 0
+    bystander_hidden_no_threshold: int = 0
+    judge_ms: list[float] = field(default_factory=list)
+    target_d: list[float] = field(default_factory=list)
+    other_d: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        tv = max(1, self.target_in_view)
+        ms = np.array(self.judge_ms) if self.judge_ms else np.array([math.nan])
+        td = np.array(self.target_d) if self.target_d else np.array([math.nan])
+        od = np.array(self.other_d) if self.other_d else np.array([math.nan])
+        return {
+            "verifier": self.verifier,
+            "scenario": self.scenario,
+            "threshold": self.threshold,
+            "model_built_s": self.model_built_s,
+            "scans": self.scans,
+            "scans_judged": self.scans_judged,
+            "target_in_view": self.target_in_view,
+            "correct_share": self.correct / tv,
+            "wrong_share": self.wrong / tv,
+            "rejected_share": self.rejected / tv,
+            "correct_share_no_threshold": self.correct_no_threshold / tv,
+            "hidden_with_others": self.hidden_with_others,
+            "bystander_choices_hidden": self.bystander_hidden,
+            "bystander_choices_hidden_no_threshold": self.bystander_hidden_no_threshold,
+            "target_distance_p50_p95": [
+                float(np.nanpercentile(td, 50)),
+                float(np.nanpercentile(td, 95)),
+            ],
+            "other_distance_p5_p50": [
+                float(np.nanpercentile(od, 5)),
+                float(np.nanpercentile(od, 50)),
+            ],
+            "judge_ms_p50_p99": [float(np.nanpercentile(ms, 50)), float(np.nanpercentile(ms, 99))],
+        }
+
+
+def _follow(sim, truth, target_id: int) -> None:
+    """Thesis 3.7 control on the true target position (a perfect tracker's estimate)."""
+    person = next((p for p in truth.people if p.id == target_id), None)
+    if person is None:
+        sim.command_velocity(0.0, 0.0)
+        return
+    x, y = person.robot_x_m, person.robot_y_m
+    r, theta = math.hypot(x, y), math.atan2(y, x)
+    w = 0.0 if abs(theta) < math.radians(6) else max(-1.745, min(1.745, 1.5 * theta))
+    v = 0.0 if r < 1.2 else (0.5 if r <= 1.5 else 0.75)  # thesis 3.7: 1.2 / 1.5 m, 0.75 m/s
+    sim.command_velocity(v, w)
+    sim.command_pan(theta)
+
+
+def evaluate_sim(
+    verifier_name: str,
+    *,
+    scenario: str = "thesis_5_2_4_two_people",
+    swap_target: bool = False,
+    threshold: float | None = None,
+    duration_s: float | None = None,
+    adapt_rate: float = 0.0,
+    follow: bool = True,
+    bystander: bool = False,
+) -> SimScore:
+    from followbot.schemas import GroundTruth, Image, LaserScan
+    from followbot.services.laser_legs.detectors.thesis import ClusterLegDetector, ThesisSettings
+    from followbot.services.sim.scenario import load_builtin
+    from followbot.services.sim.simulation import Simulation
+
+    from .core import Camera, ImageFeatures, adapt_features, confident, judge
+    from .model import ModelBuilder, build_model
+    from .verifiers import make_verifier
+
+    spec = load_builtin(scenario)
+    if swap_target:
+        people = [msgspec.structs.replace(p, is_target=not p.is_target) for p in spec.people]
+        spec = msgspec.structs.replace(spec, people=people)
+    if duration_s is not None:
+        spec = msgspec.structs.replace(spec, duration_s=duration_s)
+    if bystander:  # a bystander in a yellow checked shirt pacing in front from t = 20 s
+        from followbot.services.sim.scenario import (
+            AppearanceSpec,
+            PauseStep,
+            PersonSpec,
+            WalkStep,
+        )
+
+        extra = PersonSpec(
+            id=99,
+            start=(1.6, 1.4),
+            heading_deg=-90.0,
+            speed_mps=0.5,
+            loop=True,
+            path=[PauseStep(duration_s=20.0), WalkStep(to=(1.6, -1.4)), WalkStep(to=(1.6, 1.4))],
+            appearance=AppearanceSpec(
+                shirt_rgb=(240, 220, 60), trousers_rgb=(90, 70, 50), pattern="checks"
+            ),
+        )
+        spec = msgspec.structs.replace(spec, people=[*spec.people, extra])
+    target_id = next(p.id for p in spec.people if p.is_target)
+    sim = Simulation(spec)
+    cs = spec.camera
+    camera = Camera(
+        width=cs.width,
+        height=cs.height,
+        hfov_deg=cs.hfov_deg,
+        height_m=cs.height_m,
+        offset_x_m=cs.mount_x_m - spec.laser.mount_x_m,
+    )
+    verifier = make_verifier(verifier_name)
+    if threshold is None:
+        threshold = verifier.default_threshold
+    detector = ClusterLegDetector(ThesisSettings(clip_range_m=None))
+    builder = ModelBuilder(camera)
+    score = SimScore(
+        verifier=verifier_name,
+        scenario=scenario + ("/person2" if swap_target else ""),
+        threshold=threshold,
+    )
+    model = None
+    image: Image | None = None
+    pixels = None
+    pending: list = []  # scans waiting for their image (same tick)
+    while not sim.finished:
+        msgs = sim.tick()
+        truth = None
+        for m in msgs:
+            if isinstance(m, Image):
+                image, pixels = m, m.pixels().copy()
+                if model is None:
+                    acq = builder.add_image(m.stamp_ns, pixels, m.pan_rad)
+                    if acq is not None:
+                        model = build_model(verifier, camera, acq, 1)
+                        score.model_built_s = m.stamp_ns / _NS
+            elif isinstance(m, LaserScan):
+                cands = detector.detect(m)
+                if model is None:
+                    acq = builder.add_scan(m.stamp_ns, m.ranges_m(), cands)
+                    if acq is not None:
+                        model = build_model(verifier, camera, acq, 1)
+                        score.model_built_s = m.stamp_ns / _NS
+                pending.append((m.stamp_ns, cands))
+            elif isinstance(m, GroundTruth):
+                truth = m
+                pending[-1] = (*pending[-1], m)
+        for stamp, cands, tr in pending:
+            score.scans += 1
+            if model is not None and follow:
+                _follow(sim, tr, target_id)
+            if model is None or image is None or abs(image.stamp_ns - stamp) > 0.06 * _NS:
+                continue
+            score.scans_judged += 1
+            xy = np.array([[c.x_m, c.y_m] for c in cands.candidates]).reshape(-1, 2)
+            t0 = time.perf_counter()
+            frame = ImageFeatures(pixels)
+            j = judge(verifier, frame, camera, model, xy, image.pan_rad, None)
+            score.judge_ms.append((time.perf_counter() - t0) * 1e3)
+            _score_scan(score, j, xy, tr, target_id, threshold)
+            if adapt_rate > 0:
+                from .core import choose
+
+                ch = choose(j.distances, threshold)
+                if confident(j.distances, ch, 0.5 * threshold, 0.2):
+                    seen = verifier.describe(frame, j.views[ch].rect)
+                    if seen is not None:
+                        model.features = adapt_features(model.features, seen, adapt_rate)
+        pending.clear()
+        del truth
+    return score
+
+
+def _owner(xy: np.ndarray, truth, radius_m: float = 0.5) -> list[int]:
+    """Per candidate: the id of the true person within ``radius_m`` (nearest), or -1."""
+    out = []
+    for x, y in xy:
+        best, who = radius_m, -1
+        for p in truth.people:
+            d = math.hypot(p.robot_x_m - x, p.robot_y_m - y)
+            if d < best:
+                best, who = d, p.id
+        out.append(who)
+    return out
+
+
+def _score_scan(score: SimScore, j, xy, truth, target_id: int, threshold) -> None:
+    from .core import choose
+
+    owners = _owner(xy, truth)
+    target = next(p for p in truth.people if p.id == target_id)
+    in_view = [v.ok and j.distances[i] is not None for i, v in enumerate(j.views)]
+    target_idx = [i for i, o in enumerate(owners) if o == target_id and in_view[i]]
+    others = [i for i in range(len(owners)) if owners[i] != target_id and in_view[i]]
+    for i in target_idx:
+        score.target_d.append(j.distances[i])
+    for i in others:
+        if owners[i] >= 0:
+            score.other_d.append(j.distances[i])
+    with_t = choose(j.distances, threshold)
+    without = choose(j.distances, None)
+    if target.visible_camera and target_idx:
+        score.target_in_view += 1
+        if with_t in target_idx:
+            score.correct += 1
+        elif with_t < 0:
+            score.rejected += 1
+        else:
+            score.wrong += 1
+        if without in target_idx:
+            score.correct_no_threshold += 1
+    elif not target_idx and others:
+        score.hidden_with_others += 1
+        if with_t >= 0:
+            score.bystander_hidden += 1
+        if without >= 0:
+            score.bystander_hidden_no_threshold += 1
+
+
+# --------------------------------------------------------------------------- real footage
+
+
+def pedestrian_boxes(prev_grey, grey, *, threshold: float = 30.0, min_area_px: int = 600):
+    """Boxes (x0, y0, x1, y1) of moving blobs between two frames: thesis smoothing and
+    differencing, then dilation and connected components (vtest's people are small, so the
+    threshold is lower than the thesis's 80 and blobs are kept apart)."""
+    import cv2
+
+    from .model import smooth_grey
+
+    d = cv2.absdiff(smooth_grey(prev_grey), smooth_grey(grey))
+    mask = (d > threshold).astype(np.uint8)
+    mask = cv2.dilate(mask, np.ones((7, 3), np.uint8), iterations=2)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(mask)
+    boxes = []
+    for k in range(1, n):
+        x, y, w, h, area = stats[k]
+        if area >= min_area_px and h >= 1.2 * w and h >= 30:  # upright: a pedestrian
+            boxes.append((int(x), int(y), int(x + w), int(y + h)))
+    return boxes
+
+
+def _iou(a, b) -> float:
+    ix = max(0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union else 0.0
+
+
+def evaluate_vtest(path: str, max_frames: int = 400) -> dict:
+    """Histogram distances of the same pedestrian across frames vs different pedestrians."""
+    import cv2
+
+    from .core import ImageFeatures, bhattacharyya
+
+    cap = cv2.VideoCapture(path)
+    if not cap.isOpened():
+        raise ValueError(f"cannot open video {path}")
+    prev_grey = None
+    prev: list[tuple[tuple, dict]] = []
+    same, cross = [], []
+    hist_ms, frames, boxes_total = [], 0, 0
+    try:
+        while frames < max_frames:
+            ok, bgr = cap.read()
+            if not ok:
+                break
+            frames += 1
+            grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+            cur: list[tuple[tuple, dict]] = []
+            if prev_grey is not None:
+                boxes = pedestrian_boxes(prev_grey, grey)
+                boxes_total += len(boxes)
+                frame = ImageFeatures(bgr)
+                for b in boxes:
+                    t0 = time.perf_counter()
+                    h = frame.histograms(b)
+                    hist_ms.append((time.perf_counter() - t0) * 1e3)
+                    cur.append((b, h))
+
+                def d(h1, h2):
+                    return bhattacharyya(h1["colour_hs"], h2["colour_hs"]) + bhattacharyya(
+                        h1["edge_orientation"], h2["edge_orientation"]
+                    )
+
+                for b, h in cur:  # the same pedestrian one frame later: best overlap > 0.5
+                    match = max(prev, key=lambda p, b=b: _iou(p[0], b), default=None)
+                    if match is not None and _iou(match[0], b) > 0.5:
+                        same.append(d(h, match[1]))
+                for i in range(len(cur)):  # different pedestrians of one frame (no overlap)
+                    for k in range(i + 1, len(cur)):
+                        if _iou(cur[i][0], cur[k][0]) == 0.0:
+                            cross.append(d(cur[i][1], cur[k][1]))
+            prev_grey, prev = grey, cur
+    finally:
+        cap.release()
+    same_a, cross_a = np.array(same), np.array(cross)
+
+    def pct(a, q):
+        return float(np.percentile(a, q)) if a.size else None
+
+    return {
+        "video": path,
+        "frames": frames,
+        "boxes": boxes_total,
+        "same_pairs": int(same_a.size),
+        "cross_pairs": int(cross_a.size),
+        "same_distance_p50_p90": [pct(same_a, 50), pct(same_a, 90)],
+        "cross_distance_p10_p50": [pct(cross_a, 10), pct(cross_a, 50)],
+        "same_below_cross_median": (
+            float(np.mean(same_a < np.median(cross_a))) if same_a.size and cross_a.size else None
+        ),
+        "histograms_ms_p50_p99_per_box": [pct(np.array(hist_ms), 50), pct(np.array(hist_ms), 99)],
+        "mean_box_px": None,
+    }
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m followbot.services.vision_verify.evaluate")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("sim", help="verifiers in the simulator's two-person scenario")
+    s.add_argument("--verifier", action="append", default=[])
+    s.add_argument("--json", help="write the figures here")
+    s.add_argument("--adapt-rate", type=float, default=0.0)
+    v = sub.add_parser("vtest", help="histograms on OpenCV's vtest.avi")
+    v.add_argument("path")
+    v.add_argument("--frames", type=int, default=400)
+    args = ap.parse_args(argv)
+    if args.cmd == "vtest":
+        out = evaluate_vtest(args.path, args.frames)
+        json.dump(out, sys.stdout, indent=2)
+        print()
+        return 0
+    results = []
+    runs = [
+        ("thesis_5_2_4_two_people", dict(follow=True)),
+        ("livingston_box_occlusion", dict(follow=False, bystander=True)),
+    ]
+    for name in args.verifier or ["histogram", "meanshift", "face"]:
+        for scenario, kw in runs:
+            r = evaluate_sim(name, scenario=scenario, adapt_rate=args.adapt_rate, **kw).summary()
+            r["robot"] = "follows the target (truth)" if kw["follow"] else "still"
+            results.append(r)
+            print(json.dumps(r), flush=True)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,294 @@
+"""Target model construction (thesis 3.3, 4.2): where the one moving person is, image and laser.
+
+Image (thesis 4.2.1.1). Two successive frames -> grey -> smoothed with the separable kernel
+[0.25, 0.5, 0.25] in x and y -> |difference| -> threshold 80 of 255 -> bounding rectangle of
+the changed pixels. A rectangle smaller than 0.4 W H (30 720 px at 320 x 240) is not enough
+movement: the next pair of frames is tried. The rectangle's vertical centre is then put on the
+image's horizontal centre line (thesis 3.5.1.2), so every later rectangle is centred there too.
+
+Laser (thesis 3.3.2, 4.2.2). The previous scan is the reference; beams whose range changed by
+more than 30 mm (twice the scanner's +-15 mm) that fall on a leg of a candidate of the
+reference scan mark that candidate as moving. Exactly one moving candidate locates the person
+(x_model, y_model); its position is taken from the current scan's candidate nearest to it.
+
+The two are paired when their stamps are within a tolerance and the laser position projects
+into the image rectangle (the same person moved in both), and the pan did not change between
+the two frames (the thesis builds the model with the camera still). The camera's pan may be
+any fixed angle.
+
+Models are saved to and loaded from files as the msgpack-encoded TargetModel wire message.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import msgspec
+import numpy as np
+
+from followbot.schemas import PersonCandidates, RejectedMessage, TargetModel, decode, encode
+
+from .core import Camera, ImageFeatures, Model, Rect, Verifier, View, clip_rect
+
+__all__ = [
+    "AcquireSettings",
+    "Acquisition",
+    "ModelBuilder",
+    "build_model",
+    "load_model",
+    "motion_rect",
+    "moving_candidates",
+    "recentre",
+    "save_model",
+    "smooth_grey",
+]
+
+_KERNEL = np.array([0.25, 0.5, 0.25], dtype=np.float32)  # thesis 4.2.1.1: 3-tap kernel
+
+
+class AcquireSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    diff_threshold: float = 80.0  # thesis 4.2.1.1: 80 of 255
+    min_area_fraction: float = 0.4  # thesis eq. 4-2: T_A = 0.4 x 320 x 240
+    laser_threshold_m: float = 0.030  # thesis 4.2.2: 30 mm (laser accuracy +-15 mm)
+    min_changed_beams: int = 2
+    """Changed beams a leg must hold to count as moving (1 would let single noisy beams in)."""
+    pair_tolerance_s: float = 0.15
+    """Largest stamp difference between the image pair and the laser fix that are paired."""
+    match_radius_m: float = 0.4
+    """Reference-scan mover to current-scan candidate: nearest within this radius."""
+    column_margin_px: float = 20.0
+    """The laser fix must project inside the motion rectangle widened by this margin."""
+    max_width_m: float = 1.2
+    """A motion rectangle wider than this at the laser fix's depth holds more than one mover."""
+
+
+# --------------------------------------------------------------------------- image
+
+
+def smooth_grey(bgr: np.ndarray) -> np.ndarray:
+    """Intensity smoothed with [0.25 0.5 0.25] horizontally and vertically (float32)."""
+    grey = bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    return cv2.sepFilter2D(grey, cv2.CV_32F, _KERNEL, _KERNEL)
+
+
+def motion_rect(
+    prev: np.ndarray, cur: np.ndarray, threshold: float = 80.0
+) -> tuple[Rect | None, int]:
+    """Bounding rectangle of the pixels that changed by more than ``threshold`` between two
+    smoothed intensity images (from :func:`smooth_grey`), and how many pixels changed."""
+    if prev.shape != cur.shape:
+        raise ValueError(f"frames differ in size: {prev.shape} vs {cur.shape}")
+    changed = (cv2.absdiff(prev, cur) > threshold).view(np.uint8)
+    n = int(cv2.countNonZero(changed))
+    if n == 0:
+        return None, 0
+    x, y, w, h = cv2.boundingRect(cv2.findNonZero(changed))
+    return (x, y, x + w, y + h), n
+
+
+def recentre(rect: Rect, width: int, height: int, cy: float) -> Rect | None:
+    """``rect`` moved vertically so its centre is on row ``cy`` (thesis 3.5.1.2), clipped."""
+    x0, y0, x1, y1 = rect
+    h = y1 - y0
+    top = round(cy - h / 2)
+    return clip_rect((x0, top, x1, top + h), width, height)
+
+
+# --------------------------------------------------------------------------- laser
+
+
+def moving_candidates(
+    ref_ranges: np.ndarray,
+    cur_ranges: np.ndarray,
+    ref_candidates: PersonCandidates,
+    threshold_m: float = 0.03,
+    min_beams: int = 2,
+) -> list[int]:
+    """Indices of the reference scan's candidates whose legs hold >= ``min_beams`` beams whose
+    range changed by more than ``threshold_m`` (thesis 4.2.2); beams without a return in either
+    scan do not count."""
+    ref = np.asarray(ref_ranges, dtype=np.float64)
+    cur = np.asarray(cur_ranges, dtype=np.float64)
+    if ref.shape != cur.shape:
+        return []
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(ref) & np.isfinite(cur) & (ref > 0) & (cur > 0)
+        changed = valid & (np.abs(cur - ref) > threshold_m)
+    counts = np.concatenate([[0], np.cumsum(changed)])
+    out = []
+    for i, c in enumerate(ref_candidates.candidates):
+        n = 0
+        for leg in c.legs:
+            a, b = leg.first_beam, min(leg.last_beam, ref.shape[0] - 1)
+            if a <= b:
+                n += int(counts[b + 1] - counts[a])
+        if n >= min_beams:
+            out.append(i)
+    return out
+
+
+# --------------------------------------------------------------------------- builder
+
+
+class Acquisition(msgspec.Struct, kw_only=True):
+    """What the model is made of: the frame, the rectangle, the laser position."""
+
+    stamp_ns: int
+    bgr: np.ndarray
+    rect: Rect
+    pan_rad: float
+    x_m: float
+    y_m: float
+
+
+class ModelBuilder:
+    """Feed it images and scans (with their candidates) while the robot stands still; it
+    returns an :class:`Acquisition` once the image and the laser agree on one moving person."""
+
+    def __init__(self, camera: Camera, settings: AcquireSettings | None = None) -> None:
+        self.camera = camera
+        self.settings = settings or AcquireSettings()
+        self._prev: tuple[int, np.ndarray, float] | None = None  # stamp, smoothed, pan
+        self._motion: tuple[int, np.ndarray, Rect, float] | None = None  # stamp, bgr, rect, pan
+        self._ref: tuple[int, np.ndarray, PersonCandidates] | None = None
+        self._fix: tuple[int, float, float] | None = None  # stamp, x, y
+        self.attempts = {
+            "image_pairs": 0,
+            "small_motion": 0,
+            "laser_pairs": 0,
+            "ambiguous": 0,
+            "mismatch": 0,
+        }
+
+    def add_image(self, stamp_ns: int, bgr: np.ndarray, pan_rad: float) -> Acquisition | None:
+        s, cam = self.settings, self.camera
+        cur = smooth_grey(bgr)
+        prev, self._prev = self._prev, (stamp_ns, cur, pan_rad)
+        if prev is None or prev[1].shape != cur.shape or abs(prev[2] - pan_rad) > 1e-3:
+            return None
+        self.attempts["image_pairs"] += 1
+        rect, _ = motion_rect(prev[1], cur, s.diff_threshold)
+        h, w = cur.shape
+        if rect is None or (rect[2] - rect[0]) * (rect[3] - rect[1]) < s.min_area_fraction * w * h:
+            self.attempts["small_motion"] += 1  # thesis 4.2.1.1: try two more frames
+            return None
+        rect = recentre(rect, w, h, cam.cy)
+        if rect is None:
+            return None
+        self._motion = (stamp_ns, bgr, rect, pan_rad)
+        return self._try()
+
+    def add_scan(
+        self, stamp_ns: int, ranges: np.ndarray, candidates: PersonCandidates
+    ) -> Acquisition | None:
+        s = self.settings
+        ref, self._ref = self._ref, (stamp_ns, np.array(ranges, dtype=np.float64), candidates)
+        if ref is None:
+            return None
+        self.attempts["laser_pairs"] += 1
+        movers = moving_candidates(ref[1], ranges, ref[2], s.laser_threshold_m, s.min_changed_beams)
+        if len(movers) != 1:
+            if len(movers) > 1:
+                self.attempts["ambiguous"] += 1  # thesis 4.2: the target must move alone
+            return None
+        c = ref[2].candidates[movers[0]]
+        x, y = c.x_m, c.y_m
+        best = s.match_radius_m
+        for cc in candidates.candidates:  # the mover's position in the current scan
+            d = math.hypot(cc.x_m - c.x_m, cc.y_m - c.y_m)
+            if d < best:
+                best, x, y = d, cc.x_m, cc.y_m
+        self._fix = (stamp_ns, x, y)
+        return self._try()
+
+    def _try(self) -> Acquisition | None:
+        if self._motion is None or self._fix is None:
+            return None
+        t_img, bgr, rect, pan = self._motion
+        t_fix, x, y = self._fix
+        if abs(t_img - t_fix) > self.settings.pair_tolerance_s * 1e9:
+            return None
+        xc, yc = self.camera.to_camera(np.array(x), np.array(y), pan)
+        m = self.settings.column_margin_px
+        if not (float(xc) >= self.camera.min_depth_m):
+            self.attempts["mismatch"] += 1
+            return None
+        u = float(self.camera.column(xc, yc))
+        too_wide = (rect[2] - rect[0]) > self.settings.max_width_m * self.camera.f / float(xc)
+        if too_wide or not (rect[0] - m <= u <= rect[2] + m):
+            self.attempts["mismatch"] += 1  # image and laser saw different movers
+            self._motion = None
+            return None
+        return Acquisition(stamp_ns=t_img, bgr=bgr, rect=rect, pan_rad=pan, x_m=x, y_m=y)
+
+
+def build_model(verifier: Verifier, camera: Camera, acq: Acquisition, model_id: int) -> Model:
+    """Learn the verifier's features in the acquisition's rectangle."""
+    xc, yc = camera.to_camera(np.array(acq.x_m), np.array(acq.y_m), acq.pan_rad)
+    depth, lateral = float(xc), float(yc)
+    if not depth >= camera.min_depth_m:
+        raise ValueError(
+            f"target at ({acq.x_m:.2f}, {acq.y_m:.2f}) m is not in front of the camera"
+        )
+    h, w = acq.bgr.shape[:2]
+    rect = clip_rect(acq.rect, w, h)
+    if rect is None:
+        raise ValueError(f"empty model rectangle {acq.rect}")
+    frame = ImageFeatures(acq.bgr)
+    frame.cache["camera"] = camera
+    view = View(
+        index=0,
+        x_m=acq.x_m,
+        y_m=acq.y_m,
+        depth_m=depth,
+        lateral_m=lateral,
+        u_px=float(camera.column(depth, lateral)),
+        rect=rect,
+    )
+    return Model(
+        model_id=model_id,
+        verifier=verifier.name,
+        x_m=acq.x_m,
+        y_m=acq.y_m,
+        depth_m=depth,
+        rect_w_px=float(rect[2] - rect[0]),
+        rect_h_px=float(rect[3] - rect[1]),
+        image_width=w,
+        image_height=h,
+        features=verifier.learn(frame, rect, view),
+        pan_rad=acq.pan_rad,
+        stamp_ns=acq.stamp_ns,
+    )
+
+
+# --------------------------------------------------------------------------- files
+
+
+def save_model(path: str | os.PathLike, message: TargetModel) -> None:
+    """Write the model atomically (a reader never sees half a file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(encode(message))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_model(path: str | os.PathLike) -> TargetModel:
+    """Read a model file; ``ValueError`` naming the file when it is missing or not a model."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"cannot read model file {path}: {exc.strerror}") from None
+    try:
+        return decode(TargetModel, data)
+    except RejectedMessage as exc:
+        raise ValueError(f"{path}: not a target model: {exc}") from None

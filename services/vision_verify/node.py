@@ -1,0 +1,445 @@
+"""vision_verify: say which laser candidate is the target, by appearance (thesis 3.5, 4.4).
+
+Inputs: sensors/image (latest only), perception/candidates, perception/target_command,
+perception/target_model (models of other workers), sensors/scan (used only while acquiring).
+Outputs: perception/verification (one per judged scan, naming the scan stamp and the candidate
+positions judged), perception/target_model (also answers queries, so a restarted stage or a
+second worker recovers the model; on start this service asks the network for one).
+
+Pairing: each candidates message waits (in a bounded buffer) for the image nearest its scan
+stamp within ``pair_tolerance_s``; the two newest decoded images are kept. Work that can no
+longer be paired, or that lags the newest scan by more than ``max_lag_s``, is dropped and
+counted rather than queued, so latency stays bounded however slow the verifier is. With
+``answer_every_scan`` (lock-step runs, docs/runtime.md rule 2) every scan gets exactly one
+verification: an empty one (``chosen = -1``) when there is no model or no image for it.
+
+Bad input (image of the wrong size for its camera, unknown camera, corrupt JPEG, candidates
+behind the camera or with empty or huge rectangles) is skipped and counted (Health.rejected
+for images, Health.notes for the rest), never fatal.
+
+    followbot run vision_verify --set verifier=meanshift --set threshold=0.9
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from typing import Annotated, Any
+
+import cv2
+import msgspec
+import numpy as np
+
+from followbot.schemas import (
+    Image,
+    LaserScan,
+    PersonCandidates,
+    TargetCommand,
+    TargetModel,
+    Verification,
+    VerifiedCandidate,
+)
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.service import service_main
+from followbot.services.runtime.settings import NodeSettings
+
+from .core import Camera, ImageFeatures, Model, adapt_features, confident, judge
+from .model import AcquireSettings, ModelBuilder, build_model, load_model, save_model
+from .verifiers import make_verifier
+
+__all__ = ["VisionVerify", "VisionVerifySettings", "main", "setup"]
+
+_NS = 1_000_000_000
+_Pos = Annotated[float, msgspec.Meta(gt=0)]
+
+
+class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
+    verifier: str = "histogram"
+    """histogram (thesis), face (seed 002), meanshift (seed 003), or any installed plugin."""
+    verifier_settings: dict[str, Any] = {}
+    """The verifier's own settings (see its settings_type); unknown keys are errors."""
+    cameras: dict[str, Camera] = msgspec.field(default_factory=lambda: {"default": Camera()})
+    """Camera calibrations by the Image message's ``intrinsics_id``."""
+    threshold: Annotated[float, msgspec.Meta(ge=0)] | None = None
+    """Rejection threshold on the distance; None: the verifier's default."""
+    reject: bool = True
+    """False: always take the most alike candidate (the thesis's rule)."""
+    pair_tolerance_s: Annotated[float, msgspec.Meta(ge=0)] = 0.06
+    max_lag_s: _Pos = 0.5
+    """Scans further than this behind the newest one are dropped unjudged."""
+    scan_buffer: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 32
+    answer_every_scan: bool = False
+    """Lock-step: publish exactly one verification per candidates message."""
+    image_wait_s: _Pos = 0.2
+    """Lock-step: how long a scan waits for an image before an empty answer."""
+    min_rect_side_px: Annotated[int, msgspec.Meta(ge=2)] = 8
+    max_rect_width_factor: _Pos = 3.0
+    """Candidates whose rectangle is wider than this many image widths are skipped."""
+    acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
+    auto_acquire: bool = False
+    """Build a model, without a command, whenever there is none (one mover, still robot)."""
+    acquire_timeout_s: _Pos = 30.0
+    model_file: str = ""
+    """Default file for save/load commands with no path."""
+    query_model_on_start: bool = True
+    query_timeout_s: _Pos = 1.0
+    adapt_rate: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    """Online model update rate per confident match (0: off; e.g. 0.02)."""
+    adapt_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
+    adapt_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
+    adapt_publish_period_s: _Pos = 5.0
+
+
+class _Frame:
+    __slots__ = ("camera", "features", "pan_rad", "stamp_ns")
+
+    def __init__(self, stamp_ns: int, features: ImageFeatures, pan_rad: float, camera: Camera):
+        self.stamp_ns, self.features, self.pan_rad, self.camera = (
+            stamp_ns,
+            features,
+            pan_rad,
+            camera,
+        )
+
+
+class VisionVerify:
+    """The service's state and handlers (all run in the node's loop, never concurrently)."""
+
+    def __init__(self, node: Node, settings: VisionVerifySettings) -> None:
+        self.node, self.s = node, settings
+        self.verifier = make_verifier(settings.verifier, settings.verifier_settings)
+        if not settings.cameras:
+            raise ValueError("cameras: at least one camera is needed")
+        self.threshold = None
+        if settings.reject:
+            self.threshold = (
+                settings.threshold
+                if settings.threshold is not None
+                else getattr(self.verifier, "default_threshold", None)
+            )
+        self.model: Model | None = None
+        self.model_id = 0
+        self.frames: list[_Frame] = []  # the two newest decoded images, oldest first
+        self.period_ns = 0  # camera period estimate
+        self.pending: OrderedDict[int, tuple[PersonCandidates, float]] = OrderedDict()
+        self.last_judged_ns = -1
+        self.counts: dict[str, int] = {}
+        self.builder: ModelBuilder | None = None
+        self.acquire_deadline = 0.0
+        self.scans: OrderedDict[int, np.ndarray] = OrderedDict()  # acquisition only
+        self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
+        self.model_dirty = False
+
+        self.pub_verification = node.publisher("perception/verification")
+        self.pub_model = node.publisher("perception/target_model", reliable=True, serve_last=True)
+        self.in_image = node.subscribe("sensors/image", self.on_image, policy="latest")
+        self.in_candidates = node.subscribe(
+            "perception/candidates", self.on_candidates, capacity=256, dispatch="loop"
+        )
+        node.subscribe("perception/target_command", self.on_command, dispatch="loop")
+        node.subscribe("perception/target_model", self.on_model, capacity=8, dispatch="loop")
+        node.subscribe("sensors/scan", self.on_scan, capacity=16, dispatch="loop")
+        node.every(0.02, self.on_timer, name="vision_timer")
+        node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
+        node.every(settings.health_period_s, self.update_notes, name="notes")
+        if settings.auto_acquire:
+            self.start_acquire()
+
+    # ------------------------------------------------------------------ helpers
+
+    def count(self, what: str, n: int = 1) -> None:
+        self.counts[what] = self.counts.get(what, 0) + n
+
+    def update_notes(self) -> None:
+        model = f"model {self.model.model_id} ({self.model.verifier})" if self.model else "no model"
+        acquiring = " acquiring" if self.builder is not None else ""
+        counts = " ".join(f"{k}={v}" for k, v in sorted(self.counts.items()))
+        self.node.notes = [f"{model}{acquiring}", f"counts: {counts}"[:200]]
+
+    def camera_for(self, image_width: int, image_height: int) -> Camera:
+        for cam in self.s.cameras.values():
+            if (cam.width, cam.height) == (image_width, image_height):
+                return cam
+        return next(iter(self.s.cameras.values()))
+
+    # ------------------------------------------------------------------ images
+
+    def on_image(self, img: Image) -> None:
+        cam = self.s.cameras.get(img.intrinsics_id)
+        if cam is None:
+            return self._bad_image("unknown_camera")
+        if (img.width, img.height) != (cam.width, cam.height):
+            return self._bad_image("wrong_size")
+        try:
+            px = img.pixels()
+        except ValueError:
+            return self._bad_image("corrupt_jpeg")
+        if px.ndim == 2:
+            px = cv2.cvtColor(px, cv2.COLOR_GRAY2BGR)
+        if self.frames:
+            dt = img.stamp_ns - self.frames[-1].stamp_ns
+            if dt <= 0:
+                return self._bad_image("out_of_order")
+            self.period_ns = dt if self.period_ns == 0 else round(0.8 * self.period_ns + 0.2 * dt)
+        self.frames = [*self.frames[-1:], _Frame(img.stamp_ns, ImageFeatures(px), img.pan_rad, cam)]
+        if self.builder is not None:
+            self._acquired(self.builder.add_image(img.stamp_ns, np.array(px), img.pan_rad))
+        self.work()
+
+    def _bad_image(self, why: str) -> None:
+        self.node.reject(self.in_image, why)  # shows in Health.rejected[sensors/image]
+        self.count(f"image_{why}")
+
+    # ------------------------------------------------------------------ candidates, pairing
+
+    def on_candidates(self, msg: PersonCandidates) -> None:
+        if self.builder is not None:
+            self.acq_cands[msg.stamp_ns] = msg
+            self._feed_builder()
+        if msg.stamp_ns <= self.last_judged_ns or msg.stamp_ns in self.pending:
+            self.count("scan_duplicate_or_old")
+            if self.s.answer_every_scan and msg.stamp_ns not in self.pending:
+                self.publish_empty(msg)
+            return
+        if self.model is None:
+            self.count("scan_no_model")
+            if self.s.answer_every_scan:
+                self.publish_empty(msg)
+            return
+        self.pending[msg.stamp_ns] = (msg, time.monotonic())
+        self.work()
+
+    def _nearest_frame(self, stamp_ns: int) -> _Frame | None:
+        best = min(self.frames, key=lambda f: abs(f.stamp_ns - stamp_ns), default=None)
+        if best is None or abs(best.stamp_ns - stamp_ns) > self.s.pair_tolerance_s * _NS:
+            return None
+        return best
+
+    def work(self) -> None:
+        """Judge the pending scans that have their image; drop those that never will."""
+        if not self.pending:
+            return
+        newest = next(reversed(self.pending))
+        latest_img = self.frames[-1].stamp_ns if self.frames else None
+        for stamp in list(self.pending):
+            msg, _ = self.pending[stamp]
+            if newest - stamp > self.s.max_lag_s * _NS or len(self.pending) > self.s.scan_buffer:
+                self._drop(stamp, "scan_stale")
+                continue
+            if latest_img is None:
+                continue
+            if stamp > latest_img and not (0 < stamp - latest_img <= self.period_ns / 2):
+                continue  # the next image may be nearer: wait for it
+            frame = self._nearest_frame(stamp)
+            if frame is None:
+                self._drop(stamp, "scan_no_image")
+                continue
+            del self.pending[stamp]
+            self.judge(msg, frame)
+
+    def _drop(self, stamp: int, why: str) -> None:
+        msg, _ = self.pending.pop(stamp)
+        self.count(why)
+        if self.s.answer_every_scan:
+            self.publish_empty(msg)
+
+    def on_timer(self) -> None:
+        now = time.monotonic()
+        if self.pending and self.s.answer_every_scan:
+            for stamp in list(self.pending):
+                if now - self.pending[stamp][1] > self.s.image_wait_s:
+                    self._drop(stamp, "scan_no_image")
+        if self.builder is not None and now > self.acquire_deadline:
+            self.node.log.warning(
+                "no target model after %.0f s of trying", self.s.acquire_timeout_s
+            )
+            self.count("acquire_timeout")
+            self.builder = None
+
+    # ------------------------------------------------------------------ judging
+
+    def judge(self, msg: PersonCandidates, frame: _Frame) -> None:
+        model = self.model
+        xy = np.array([[c.x_m, c.y_m] for c in msg.candidates], dtype=np.float64).reshape(-1, 2)
+        j = judge(
+            self.verifier,
+            frame.features,
+            frame.camera,
+            model,
+            xy,
+            frame.pan_rad,
+            self.threshold,
+            min_side_px=self.s.min_rect_side_px,
+            max_width_factor=self.s.max_rect_width_factor,
+        )
+        out = []
+        for v, d in zip(j.views, j.distances, strict=True):
+            if v.status not in ("ok", "out_of_view"):
+                self.count(f"candidate_{v.status}")
+            out.append(
+                VerifiedCandidate(
+                    index=v.index, x_m=v.x_m, y_m=v.y_m, in_view=d is not None, distance=d
+                )
+            )
+        self.last_judged_ns = max(self.last_judged_ns, msg.stamp_ns)
+        self.count("verified")
+        self.pub_verification.put(
+            Verification(
+                stamp_ns=msg.stamp_ns,
+                frame_id=msg.frame_id,
+                image_stamp_ns=frame.stamp_ns,
+                model_id=model.model_id,
+                verifier=self.verifier.name,
+                candidates=out,
+                chosen=j.chosen,
+                threshold=self.threshold,
+            )
+        )
+        s = self.s
+        if s.adapt_rate > 0 and confident(
+            j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
+        ):
+            seen = self.verifier.describe(frame.features, j.views[j.chosen].rect)
+            if seen is not None:
+                model.features = adapt_features(model.features, seen, s.adapt_rate)
+                self.model_dirty = True
+
+    def publish_empty(self, msg: PersonCandidates) -> None:
+        self.last_judged_ns = max(self.last_judged_ns, msg.stamp_ns)
+        self.pub_verification.put(
+            Verification(
+                stamp_ns=msg.stamp_ns,
+                frame_id=msg.frame_id,
+                image_stamp_ns=0,
+                model_id=self.model.model_id if self.model else 0,
+                verifier=self.verifier.name,
+                chosen=-1,
+                threshold=self.threshold,
+            )
+        )
+
+    # ------------------------------------------------------------------ model
+
+    def install(self, message: TargetModel, *, publish: bool, source: str) -> bool:
+        if message.verifier != self.verifier.name:
+            self.node.log.warning(
+                "ignoring %s model %d: it is for verifier %r, this service runs %r",
+                source,
+                message.model_id,
+                message.verifier,
+                self.verifier.name,
+            )
+            self.count("model_wrong_verifier")
+            return False
+        try:
+            model = Model.from_message(
+                message, self.camera_for(message.image_width, message.image_height)
+            )
+        except ValueError as exc:
+            self.node.log.warning("ignoring %s model: %s", source, exc)
+            self.count("model_invalid")
+            return False
+        self.model, self.model_id = model, max(self.model_id, model.model_id)
+        self.node.log.info("target model %d from %s", model.model_id, source)
+        if publish:
+            self.pub_model.put(model.to_message())
+        else:  # serve it too, so it survives the worker that built it
+            self.pub_model.serve(message)
+        return True
+
+    def on_model(self, message: TargetModel) -> None:
+        if message.model_id > self.model_id or self.model is None:
+            self.install(message, publish=False, source="network")
+
+    def publish_adapted(self) -> None:
+        if self.model_dirty and self.model is not None:
+            self.model_dirty = False
+            self.pub_model.put(self.model.to_message())
+
+    def on_command(self, cmd: TargetCommand) -> None:
+        path = cmd.path or self.s.model_file
+        if cmd.action == "acquire":
+            self.start_acquire()
+        elif cmd.action == "reset":
+            self.model, self.builder = None, None
+            self.pub_model.serve(None)  # stop serving the dropped model
+            self.pending.clear()
+            self.node.log.info("target model dropped")
+        elif cmd.action == "save":
+            if self.model is None:
+                raise ValueError("save: there is no target model")
+            if not path:
+                raise ValueError("save: no path in the command and no model_file setting")
+            save_model(path, self.model.to_message())
+            self.node.log.info("target model %d saved to %s", self.model.model_id, path)
+        elif cmd.action == "load":
+            if not path:
+                raise ValueError("load: no path in the command and no model_file setting")
+            message = load_model(path)
+            message.model_id = max(self.model_id, message.model_id) + 1
+            self.install(message, publish=True, source=f"file {path}")
+
+    def start_acquire(self) -> None:
+        self.builder = ModelBuilder(self.camera_for(*self._image_size()), self.s.acquire)
+        self.acquire_deadline = time.monotonic() + self.s.acquire_timeout_s
+        self.scans.clear()
+        self.acq_cands.clear()
+        self.node.log.info("acquiring a target model: the target should move alone")
+
+    def _image_size(self) -> tuple[int, int]:
+        if self.frames:
+            f = self.frames[-1].features
+            return f.width, f.height
+        cam = next(iter(self.s.cameras.values()))
+        return cam.width, cam.height
+
+    def on_scan(self, scan: LaserScan) -> None:
+        if self.builder is None:
+            return
+        self.scans[scan.stamp_ns] = np.array(scan.ranges_m(), dtype=np.float64)
+        while len(self.scans) > 16:
+            self.scans.popitem(last=False)
+        self._feed_builder()
+
+    def _feed_builder(self) -> None:
+        while len(self.acq_cands) > 16:
+            self.acq_cands.popitem(last=False)
+        for stamp in sorted(set(self.scans) & set(self.acq_cands)):
+            ranges = self.scans.pop(stamp)
+            cands = self.acq_cands.pop(stamp)
+            if self.builder is not None:
+                self._acquired(self.builder.add_scan(stamp, ranges, cands))
+
+    def _acquired(self, acq) -> None:
+        if acq is None or self.builder is None:
+            return
+        self.builder = None
+        model = build_model(self.verifier, self.builder_camera(acq), acq, self.model_id + 1)
+        self.model, self.model_id = model, model.model_id
+        self.pending.clear()
+        self.pub_model.put(model.to_message())
+        self.node.log.info(
+            "target model %d built: %.2f, %.2f m, rectangle %dx%d px",
+            model.model_id,
+            model.x_m,
+            model.y_m,
+            model.rect_w_px,
+            model.rect_h_px,
+        )
+
+    def builder_camera(self, acq) -> Camera:
+        return self.camera_for(acq.bgr.shape[1], acq.bgr.shape[0])
+
+
+def setup(node: Node, settings: VisionVerifySettings) -> VisionVerify:
+    svc = VisionVerify(node, settings)
+    if settings.query_model_on_start:
+        replies = [m for m in node.query("perception/target_model", settings.query_timeout_s)]
+        if replies:
+            best = max(replies, key=lambda m: m.model_id)
+            svc.install(best, publish=False, source="query")
+    return svc
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main("vision_verify", VisionVerifySettings, setup, argv, __doc__)

@@ -1,0 +1,288 @@
+"""Histograms, Bhattacharyya distance, rectangle geometry and the choice (core.py)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from followbot.services.vision_verify.core import (
+    COLOUR_BINS,
+    EDGE_BINS,
+    Camera,
+    ImageFeatures,
+    adapt_features,
+    bhattacharyya,
+    blend,
+    choose,
+    colour_histogram,
+    confident,
+    edge_histogram,
+    project,
+)
+
+
+def patch(bgr, h=40, w=30):
+    return np.full((h, w, 3), bgr, dtype=np.uint8)
+
+
+# --------------------------------------------------------------------------- colour
+
+
+def test_saturated_red_falls_in_hue_0_saturation_9_of_both_halves():
+    hist = colour_histogram(patch((0, 0, 255)))  # BGR red: H 0, S 255, V 255
+    assert hist.shape == (COLOUR_BINS,) and hist.dtype == np.float32
+    want = np.zeros(COLOUR_BINS, np.float32)
+    want[0 * 10 + 9] = 0.5  # upper half: HS bin (hue 0, sat 9)
+    want[108 + 9] = 0.5  # lower half
+    np.testing.assert_allclose(hist, want, atol=1e-6)
+
+
+def test_dark_and_grey_pixels_go_to_brightness_bins():
+    dark = colour_histogram(patch((30, 30, 30)))  # V = 30 < 51: brightness bin 30*8//256 = 0
+    assert dark[100] == pytest.approx(0.5) and dark[208] == pytest.approx(0.5)
+    grey = colour_histogram(patch((200, 200, 200)))  # S = 0 < 51, V = 200: bin 6
+    assert grey[106] == pytest.approx(0.5) and grey[214] == pytest.approx(0.5)
+    # a saturated but dark colour (V < 51) is brightness too, not colour
+    dim_red = colour_histogram(patch((0, 0, 40)))
+    assert dim_red[101] == pytest.approx(0.5) and dim_red[:100].sum() == 0  # V 40: bin 1
+
+
+def test_upper_and_lower_halves_keep_spatial_layout():
+    a = np.vstack([patch((0, 0, 255), 20), patch((255, 0, 0), 20)])  # red over blue
+    b = np.vstack([patch((255, 0, 0), 20), patch((0, 0, 255), 20)])  # blue over red
+    ha, hb = colour_histogram(a), colour_histogram(b)
+    assert ha.sum() == pytest.approx(1.0) and hb.sum() == pytest.approx(1.0)
+    assert bhattacharyya(ha, hb) > 0.99  # one histogram of the whole patch would say 0
+    assert bhattacharyya(ha, colour_histogram(a.copy())) == pytest.approx(0.0, abs=1e-3)
+
+
+def _reference_colour(bgr: np.ndarray) -> np.ndarray:
+    """Thesis 4.2.1.2 written out with numpy, pixel by pixel rules (the spec, not the code)."""
+    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV).astype(np.int64)
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    colour = (s >= 51) & (v >= 51)
+    idx = np.where(colour, (h * 10 // 180) * 10 + (s * 10 // 256), 100 + v * 8 // 256)
+    mid = bgr.shape[0] // 2
+    out = []
+    for part in (idx[:mid], idx[mid:]):
+        c = np.bincount(part.ravel(), minlength=108).astype(np.float64)
+        out.append(0.5 * c / c.sum())
+    return np.concatenate(out)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(2, 60), st.integers(1, 60), st.integers(0, 2**32 - 1))
+def test_colour_histogram_matches_the_rule_on_random_patches(h, w, seed):
+    bgr = np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    np.testing.assert_allclose(colour_histogram(bgr), _reference_colour(bgr), atol=1e-5)
+
+
+# --------------------------------------------------------------------------- edges
+
+
+def test_vertical_step_edge_points_at_0_deg_horizontal_at_90():
+    img = np.zeros((40, 40, 3), np.uint8)
+    img[:, 20:] = 200  # dark left, bright right: Gx > 0, Gy = 0 -> 0 deg
+    e = edge_histogram(img)
+    assert e.shape == (EDGE_BINS,) and e[0] == pytest.approx(1.0)
+    img = np.zeros((40, 40, 3), np.uint8)
+    img[20:] = 200  # dark top, bright bottom: Gy > 0 -> 90 deg, bin 18
+    assert edge_histogram(img)[18] == pytest.approx(1.0)
+    img = np.zeros((40, 40, 3), np.uint8)
+    img[:, :20] = 200  # bright left: 180 deg, bin 36
+    assert edge_histogram(img)[36] == pytest.approx(1.0)
+
+
+def test_flat_patch_has_no_edges_and_is_far_from_everything():
+    e = edge_histogram(patch((90, 90, 90)))
+    assert e.sum() == 0
+    assert bhattacharyya(e, np.full(EDGE_BINS, 1 / EDGE_BINS, np.float32)) == 1.0
+
+
+def test_weak_edges_below_0_4_of_the_strongest_are_ignored():
+    img = np.zeros((40, 60, 3), np.uint8)
+    img[:, 20:] = 30  # weak step (0 deg)
+    img[:, 40:] = 255  # strong step (0 deg too) ...
+    img[30:, :] = 0
+    img[30:, 10:] = 255  # ... and a strong step in the bottom rows
+    e = edge_histogram(img)
+    # the weak 0->30 step is far below 0.4 of the 30->255 or 0->255 steps: only 0 deg and the
+    # corners' diagonal edges of the strong steps vote
+    weak = np.zeros((40, 60, 3), np.uint8)
+    weak[:, 20:] = 30
+    assert edge_histogram(weak)[0] == pytest.approx(1.0)
+    assert e.sum() == pytest.approx(1.0)
+
+
+# --------------------------------------------------------------------------- distance
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 300))
+def test_bhattacharyya_equals_the_thesis_formula(seed, n):
+    rng = np.random.default_rng(seed)
+    p = rng.random(n).astype(np.float32)
+    q = rng.random(n).astype(np.float32)
+    p[rng.random(n) < 0.3] = 0
+    p[0] += 0.01
+    p /= p.sum()
+    q /= q.sum()
+    want = math.sqrt(max(0.0, 1.0 - float(np.sum(np.sqrt(p.astype(float) * q)))))
+    assert bhattacharyya(p, q) == pytest.approx(want, abs=2e-3)
+
+
+def test_bhattacharyya_bounds():
+    p = np.array([1, 0, 0, 0], np.float32)
+    q = np.array([0, 0.5, 0.5, 0], np.float32)
+    assert bhattacharyya(p, p) == pytest.approx(0.0, abs=1e-4)
+    assert bhattacharyya(p, q) == pytest.approx(1.0)
+    with pytest.raises(ValueError):
+        bhattacharyya(p, np.ones(5, np.float32))
+
+
+def test_rectangles_of_one_frame_equal_separate_patches_inside():
+    """Whole-frame work shared by rectangles gives the same colour histogram as the patch
+    alone (edges may differ by a pixel at the border, where the frame has real neighbours)."""
+    rng = np.random.default_rng(1)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8), (9, 9), 3)
+    frame = ImageFeatures(img)
+    rect = (30, 10, 90, 100)
+    np.testing.assert_allclose(frame.colour(rect), colour_histogram(img[10:100, 30:90]), atol=1e-6)
+    assert bhattacharyya(frame.edges(rect), edge_histogram(img[10:100, 30:90])) < 0.2
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+CAM = Camera()  # 320 x 240, 47.5 deg: f = 160 / tan(23.75 deg)
+
+
+def test_focal_length_is_the_thesis_value():
+    assert CAM.f == pytest.approx(160 / math.tan(math.radians(23.75)))
+    assert 362 < CAM.f < 364
+
+
+def test_candidate_ahead_lands_at_the_centre_with_scaled_size():
+    (v,) = project(CAM, [[2.0, 0.0]], 0.0, 100, 200, 1.5)
+    assert v.ok and v.u_px == pytest.approx(160.0)
+    w, h = 100 * 1.5 / 2.0, 200 * 1.5 / 2.0  # eq. 3-20, 3-21: 75 x 150
+    assert v.rect == (
+        round(160 - w / 2),
+        round(120 - h / 2),
+        round(160 + w / 2),
+        round(120 + h / 2),
+    )
+
+
+def test_candidate_to_the_left_and_panning_onto_it():
+    x, y = 2.0, 0.5
+    (v,) = project(CAM, [[x, y]], 0.0, 100, 200, 2.0)
+    assert v.u_px == pytest.approx(160 - CAM.f * y / x)  # eq. 3-18: left of centre
+    assert v.u_px < 160
+    (v,) = project(CAM, [[x, y]], math.atan2(y, x), 100, 200, 2.0)  # pan onto it
+    assert v.u_px == pytest.approx(160.0)
+    assert v.depth_m == pytest.approx(math.hypot(x, y))
+    # pan 30 deg left; candidate 10 deg right of the optical axis, 3 m away
+    a = math.radians(30 - 10)
+    (v,) = project(CAM, [[3 * math.cos(a), 3 * math.sin(a)]], math.radians(30), 100, 200, 2.0)
+    assert v.u_px == pytest.approx(160 + CAM.f * math.tan(math.radians(10)))
+    assert v.rect[2] - v.rect[0] == pytest.approx(
+        100 * 2.0 / (3 * math.cos(math.radians(10))), abs=1
+    )
+
+
+def test_camera_offset_from_the_laser_is_removed():
+    cam = Camera(offset_x_m=0.2, offset_y_m=0.1)
+    (v,) = project(cam, [[2.2, 0.1]], 0.0, 100, 200, 1.0)
+    assert v.depth_m == pytest.approx(2.0) and v.u_px == pytest.approx(160.0)
+
+
+def test_matches_the_simulator_camera_convention():
+    from followbot.services.sim.camera import CameraModel
+    from followbot.services.sim.scenario import CameraSpec, WorldSpec
+    from followbot.services.sim.world import StaticWorld
+
+    sim_cam = CameraModel(
+        CameraSpec(noise_std=0), StaticWorld.from_spec(WorldSpec()), np.random.default_rng(0)
+    )
+    for x, y, pan in [(2.0, 0.3, 0.0), (3.0, -1.0, -0.2), (1.5, 1.0, 0.6)]:
+        (v,) = project(CAM, [[x, y]], pan, 50, 50, 1.0)
+        cam_pose = sim_cam.camera_pose((0.0, 0.0, 0.0), pan)
+        xc, yc = sim_cam.to_camera(cam_pose, np.array([x, y]))
+        assert v.u_px == pytest.approx(sim_cam.column(xc, yc))
+
+
+@pytest.mark.parametrize(
+    ("xy", "pan", "status"),
+    [
+        ([-1.0, 0.0], 0.0, "behind"),
+        ([0.0, 0.0], 0.0, "behind"),
+        ([0.1, 0.0], 0.0, "behind"),  # nearer than min_depth_m
+        ([2.0, 0.0], math.pi, "behind"),  # camera turned round
+        ([2.0, 2.0], 0.0, "out_of_view"),  # 45 deg left, FOV +-23.75 deg
+        ([2.0, -1.0], 0.0, "out_of_view"),
+        ([0.31, 0.0], 0.0, "too_large"),  # almost at the lens: 3000 px wide
+        ([150.0, 0.0], 0.0, "too_small"),  # far: 6 px wide
+    ],
+)
+def test_candidates_not_judged(xy, pan, status):
+    (v,) = project(CAM, [xy], pan, 300, 200, 3.0)
+    assert v.status == status and v.rect is None and not v.ok
+
+
+def test_non_finite_positions_are_invalid_not_errors():
+    views = project(CAM, [[math.nan, 0.0], [math.inf, 1.0], [2.0, 0.0]], 0.0, 100, 100, 2.0)
+    assert [v.status for v in views] == ["invalid", "invalid", "ok"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4)), max_size=12),
+    st.floats(-7, 7),
+    st.floats(1, 4096),
+    st.floats(1, 4096),
+    st.floats(0.3, 50),
+)
+def test_every_rectangle_lies_inside_the_image(xy, pan, w, h, depth):
+    views = project(CAM, np.array(xy).reshape(-1, 2), pan, w, h, depth)
+    assert len(views) == len(xy)
+    for v in views:
+        if v.ok:
+            x0, y0, x1, y1 = v.rect
+            assert 0 <= x0 < x1 <= 320 and 0 <= y0 < y1 <= 240
+            assert x1 - x0 >= 8 and y1 - y0 >= 8
+            assert v.depth_m >= CAM.min_depth_m and 0 <= v.u_px < 320
+
+
+# --------------------------------------------------------------------------- choice, update
+
+
+def test_choose_takes_the_smallest_and_the_threshold_can_refuse():
+    assert choose([0.9, None, 0.4, 0.7], None) == 2
+    assert choose([0.9, None, 0.4, 0.7], 0.5) == 2
+    assert choose([0.9, None, 0.6, 0.7], 0.5) == -1
+    assert choose([None, None], None) == -1
+    assert choose([], 0.5) == -1
+
+
+def test_confident_needs_closeness_and_a_margin():
+    assert confident([0.2, 0.8], 0, 0.4, 0.2)
+    assert not confident([0.2, 0.3], 0, 0.4, 0.2)  # a rival too close
+    assert not confident([0.5, 1.5], 0, 0.4, 0.2)  # not close enough to the model
+    assert not confident([0.5], -1, 0.4, 0.2)
+    assert confident([0.1, None], 0, 0.4, 0.2)
+
+
+def test_blend_moves_slowly_and_stays_normalised():
+    m = np.array([1, 0, 0, 0], np.float32)
+    s = np.array([0, 1, 0, 0], np.float32)
+    out = blend(m, s, 0.05)
+    np.testing.assert_allclose(out, [0.95, 0.05, 0, 0], atol=1e-6)
+    feats = adapt_features({"a": m, "b": m}, {"a": s, "c": s}, 0.5)
+    np.testing.assert_allclose(feats["a"], [0.5, 0.5, 0, 0])
+    assert feats["b"] is m and "c" not in feats

@@ -1,0 +1,266 @@
+"""The vision_verify node on an in-process network: pairing, lock-step, model life, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from followbot.schemas import (
+    Candidate,
+    Image,
+    Keys,
+    PersonCandidates,
+    TargetCommand,
+    TargetModel,
+    Verification,
+    decode,
+    encode,
+)
+from followbot.services.runtime.bus import FakeNetwork
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.settings import load_settings
+from followbot.services.vision_verify.model import build_model, save_model
+from followbot.services.vision_verify.node import VisionVerifySettings, setup
+from followbot.services.vision_verify.verifiers.histogram import HistogramVerifier
+
+from .helpers import acquired_scene, owner
+
+KEYS = Keys("robot")
+
+
+class Rig:
+    def __init__(self, net: FakeNetwork | None = None, **kw) -> None:
+        self.net = net or FakeNetwork()
+        kw.setdefault("query_timeout_s", 0.05)
+        self.settings = load_settings(VisionVerifySettings, base=kw)
+        self.node = Node("vision_verify", self.settings, self.net.bus())
+        self.svc = setup(self.node, self.settings)
+        self._bus = self.net.bus("test")
+
+    def put(self, topic: str, message) -> None:
+        self._bus.publisher(KEYS.topic(topic)).put(encode(message))
+        self.node.spin_once()
+
+    def put_raw(self, topic: str, payload: bytes) -> None:
+        self._bus.publisher(KEYS.topic(topic)).put(payload)
+        self.node.spin_once()
+
+    def out(self, topic: str, message_type):
+        key = KEYS.topic(topic)
+        return [decode(message_type, p) for k, p in self.net.published if k == key]
+
+    def verifications(self) -> list[Verification]:
+        return self.out("perception/verification", Verification)
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    camera, acq, _ = acquired_scene()
+    path = tmp_path_factory.mktemp("model") / "target.model"
+    save_model(path, build_model(HistogramVerifier(), camera, acq, 3).to_message())
+    return path
+
+
+def crossing_frame():
+    """A frame with both people judged (t > 4 s): image pixels, pan, candidates, truth."""
+    _, _, frames = acquired_scene()
+    image, px, cands, truth, _scan = next(
+        f
+        for f in frames
+        if f[0].stamp_ns > 4.3e9 and {owner(c, f[3]) for c in f[2].candidates} >= {1, 2}
+    )
+    return px, image.pan_rad, cands, truth
+
+
+def loaded(model_file, **kw) -> Rig:
+    rig = Rig(**kw)
+    rig.put(
+        "perception/target_command", TargetCommand(stamp_ns=0, action="load", path=str(model_file))
+    )
+    assert rig.svc.model is not None
+    return rig
+
+
+def test_loads_a_model_publishes_it_and_judges_a_pair(model_file):
+    rig = loaded(model_file)
+    (model_msg,) = rig.out("perception/target_model", TargetModel)
+    assert model_msg.model_id == 4  # loaded models get a new id
+    px, pan, cands, truth = crossing_frame()
+    stamp = cands.stamp_ns
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=stamp + 20_000_000, pan_rad=pan))
+    assert rig.verifications() == []  # no candidates yet
+    rig.put("perception/candidates", cands)
+    (v,) = rig.verifications()
+    assert v.stamp_ns == stamp and v.image_stamp_ns == stamp + 20_000_000
+    assert v.model_id == 4 and v.verifier == "histogram"
+    assert [c.index for c in v.candidates] == list(range(len(cands.candidates)))
+    assert [(c.x_m, c.y_m) for c in v.candidates] == [(c.x_m, c.y_m) for c in cands.candidates]
+    assert v.chosen >= 0 and owner(cands.candidates[v.chosen], truth) == 1  # the target
+    assert v.threshold == pytest.approx(HistogramVerifier().default_threshold)
+
+
+def test_jpeg_images_give_the_same_choice(model_file):
+    rig = loaded(model_file)
+    px, pan, cands, _ = crossing_frame()
+    rig.put("sensors/image", Image.jpeg_from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    rig.put("perception/candidates", cands)
+    (v,) = rig.verifications()
+    raw = loaded(model_file)
+    raw.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    raw.put("perception/candidates", cands)
+    assert v.chosen == raw.verifications()[0].chosen
+
+
+def test_waits_for_the_nearest_image_then_pairs(model_file):
+    rig = loaded(model_file)
+    px, pan, cands, _ = crossing_frame()
+    t = cands.stamp_ns
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t - 160_000_000, pan_rad=pan))
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t - 60_000_000, pan_rad=pan))
+    # camera period 100 ms; the scan is 60 ms after the last image: the next one (due at
+    # t + 40 ms) will be nearer, so it waits
+    rig.put("perception/candidates", cands)
+    assert rig.verifications() == []
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t + 10_000_000, pan_rad=pan))
+    (v,) = rig.verifications()
+    assert v.image_stamp_ns == t + 10_000_000
+
+
+def test_stale_scans_are_dropped_not_queued(model_file):
+    rig = loaded(model_file, max_lag_s=0.3)
+    px, pan, cands, _ = crossing_frame()
+    for k in range(10):  # 10 scans, 120 ms apart, no image yet
+        msg = PersonCandidates(
+            stamp_ns=10**9 + k * 120_000_000, n_beams=cands.n_beams, candidates=cands.candidates
+        )
+        rig.put("perception/candidates", msg)
+    assert len(rig.svc.pending) <= 3
+    last = 10**9 + 9 * 120_000_000
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=last, pan_rad=pan))
+    assert [v.stamp_ns for v in rig.verifications()] == [last]
+    assert rig.svc.counts["scan_stale"] + rig.svc.counts.get("scan_no_image", 0) == 9
+
+
+def test_lock_step_answers_every_scan_even_without_model_or_image(model_file):
+    rig = Rig(answer_every_scan=True, image_wait_s=0.01)
+    for k in range(3):
+        rig.put("perception/candidates", PersonCandidates(stamp_ns=k + 1))
+    assert [(v.stamp_ns, v.chosen, v.candidates) for v in rig.verifications()] == [
+        (1, -1, []),
+        (2, -1, []),
+        (3, -1, []),
+    ]
+    rig.put(
+        "perception/target_command", TargetCommand(stamp_ns=0, action="load", path=str(model_file))
+    )
+    rig.put("perception/candidates", PersonCandidates(stamp_ns=10**9))  # no image ever comes
+    import time
+
+    time.sleep(0.03)
+    rig.node.spin_once()
+    rig.svc.on_timer()
+    assert [v.stamp_ns for v in rig.verifications()] == [1, 2, 3, 10**9]
+
+
+def test_a_restarted_worker_recovers_the_model_by_query(model_file):
+    first = loaded(model_file)
+    second = Rig(net=first.net)
+    assert second.svc.model is not None and second.svc.model.model_id == 4
+    np.testing.assert_array_equal(
+        second.svc.model.features["colour_hs"], first.svc.model.features["colour_hs"]
+    )
+    first.put("perception/target_command", TargetCommand(stamp_ns=0, action="reset"))
+    assert first.svc.model is None and first.svc.pub_model.last_payload is None
+    # the second worker still serves the model it adopted
+    third = Rig(net=first.net)
+    assert third.svc.model is not None and third.svc.model.model_id == 4
+
+
+def test_save_command_writes_a_loadable_file(model_file, tmp_path):
+    rig = loaded(model_file)
+    out = tmp_path / "saved.model"
+    rig.put("perception/target_command", TargetCommand(stamp_ns=0, action="save", path=str(out)))
+    other = Rig()
+    other.put("perception/target_command", TargetCommand(stamp_ns=0, action="load", path=str(out)))
+    assert other.svc.model.model_id == 5
+    # saving with no path and no model_file is an error counted by the node, not a crash
+    rig.put("perception/target_command", TargetCommand(stamp_ns=0, action="save"))
+    rig.put(
+        "perception/target_command",
+        TargetCommand(stamp_ns=0, action="load", path=str(tmp_path / "missing")),
+    )
+    assert rig.node.errors == 2 and rig.svc.model.model_id == 4
+
+
+def test_bad_images_and_candidates_are_counted_and_skipped(model_file):
+    rig = loaded(model_file, max_rect_width_factor=2.0)
+    px, pan, cands, _ = crossing_frame()
+    t = cands.stamp_ns
+    small = np.zeros((48, 64, 3), np.uint8)
+    rig.put("sensors/image", Image.from_array(small, stamp_ns=t, pan_rad=pan))  # wrong size
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t, intrinsics_id="nope"))
+    corrupt = Image.from_array(px, stamp_ns=t)
+    corrupt.encoding, corrupt.data = "jpeg", memoryview(b"\xff\xd8" + b"\x13" * 500)
+    rig.put("sensors/image", corrupt)
+    rig.put_raw("sensors/image", b"\x00garbage")  # does not even decode
+    assert rig.svc.in_image.rejected == 4
+    assert rig.svc.frames == []
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t, pan_rad=pan))
+    odd = [
+        Candidate(x_m=-1.0, y_m=0.0, range_m=1.0, bearing_rad=3.1),  # behind
+        Candidate(x_m=0.0, y_m=0.0, range_m=0.0, bearing_rad=0.0),  # at the laser
+        Candidate(x_m=0.31, y_m=0.0, range_m=0.31, bearing_rad=0.0),  # > 2 image widths
+        Candidate(x_m=1e6, y_m=0.0, range_m=1e6, bearing_rad=0.0),  # empty rectangle
+    ]
+    rig.put(
+        "perception/candidates",
+        PersonCandidates(stamp_ns=t, n_beams=cands.n_beams, candidates=[*odd, *cands.candidates]),
+    )
+    (v,) = rig.verifications()
+    assert [c.in_view for c in v.candidates[:4]] == [False] * 4
+    assert all(c.distance is None for c in v.candidates[:4])
+    assert v.chosen >= 4
+    c = rig.svc.counts
+    assert c["candidate_behind"] == 2 and c["candidate_too_large"] == 1
+    assert c["candidate_too_small"] == 1
+    assert c["image_wrong_size"] == 1 and c["image_unknown_camera"] == 1
+    assert c["image_corrupt_jpeg"] == 1
+    assert rig.node.errors == 0
+    health = rig.node.health()
+    assert health.rejected["sensors/image"] == 4
+    rig.svc.update_notes()
+    assert any("candidate_behind=2" in n for n in rig.node.notes)
+
+
+def test_settings_are_strict_and_plugins_checked():
+    from followbot.services.runtime.settings import SettingsError
+
+    with pytest.raises(SettingsError, match="thresold"):
+        load_settings(VisionVerifySettings, base={"thresold": 1})
+    with pytest.raises(ValueError, match="valid names"):
+        Rig(verifier="nope")
+    with pytest.raises(ValueError, match="verifier_settings"):
+        Rig(verifier_settings={"edge_wieght": 1})
+
+
+@settings(
+    max_examples=30,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(
+    st.lists(st.tuples(st.floats(-1e5, 1e5), st.floats(-1e5, 1e5)), max_size=20),
+    st.floats(-6.2, 6.2),
+)
+def test_any_candidates_any_pan_never_fail(model_file, xy, pan):
+    rig = loaded(model_file)
+    px, _, _, _ = crossing_frame()
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=5, pan_rad=pan))
+    cands = [Candidate(x_m=x, y_m=y, range_m=float(np.hypot(x, y)), bearing_rad=0.0) for x, y in xy]
+    rig.put("perception/candidates", PersonCandidates(stamp_ns=5, candidates=cands))
+    assert rig.node.errors == 0
+    (v,) = rig.verifications()
+    assert len(v.candidates) == len(xy)
+    assert v.chosen == -1 or v.candidates[v.chosen].in_view
