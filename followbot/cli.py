@@ -112,6 +112,12 @@ def _cmd_up(args: argparse.Namespace, rest: list[str]) -> int:
     return main(rest)
 
 
+def _cmd_target(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.target import main
+
+    return main(rest)
+
+
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.bench import main
 
@@ -170,6 +176,13 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     p.set_defaults(fn=_cmd_up, passthrough=True)
+
+    p = sub.add_parser(
+        "target",
+        help="acquire / reset / save / load the target model (`followbot target --help`)",
+        add_help=False,
+    )
+    p.set_defaults(fn=_cmd_target, passthrough=True)
 
     p = sub.add_parser(
         "record", help="record topics to MCAP (`followbot record --help`)", add_help=False

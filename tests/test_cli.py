@@ -83,3 +83,14 @@ def test_every_registered_service_loads_and_explains_its_settings(name):
     assert out.returncode == 0, out.stderr
     assert f"followbot run {name}" in out.stdout
     assert "settings (defaults shown" in out.stdout and "zenoh:" in out.stdout
+
+
+def test_target_command_reaches_vision_verify(spawn, endpoint, robot):
+    vision = spawn("run", "vision_verify", "--robot", robot, "--listen", endpoint)
+    vision.wait_for_output("vision_verify up", timeout=20)
+    out = followbot("target", "reset", "--robot", robot, "--connect", endpoint, "--wait", "10")
+    assert out.returncode == 0, out.stderr
+    assert "sent reset" in out.stdout
+    vision.wait_for_output("target model dropped", timeout=10)
+    nobody = followbot("target", "reset", "--robot", robot + "x", "--wait", "0.5")
+    assert nobody.returncode == 1 and "no vision_verify listening" in nobody.stderr
