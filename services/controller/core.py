@@ -1,0 +1,152 @@
+"""The controller: the thesis's following rule, with acceleration and rate limits always enforced.
+
+Pure logic, no Zenoh (the node is ``node.py``). Thesis 3.7, 4.6; DESIGN.md "Control".
+
+Rule (from the target's estimate in the base frame of its scan):
+
+    r = sqrt(x^2 + y^2),  theta = atan2(y, x),  v_h = sqrt(vx^2 + vy^2)        (eq. 3-39)
+    turn       only when |theta| > 6 deg: w* = turn_gain * theta, else 0
+    translate  r < 1.2 m: 0;  1.2 <= r <= 1.5 m: v_h (the person's speed);  r > 1.5 m: v_max
+    pan        pan* = theta (eq. 4-10: the camera looks at the target while the base turns)
+
+By status: ``tracking`` applies the rule; ``coasting`` keeps the previous goal (thesis 3.6.2.8:
+fewer than 9 misses keep the previous command); ``lost`` and ``initialising`` stop; the
+watchdog (no fresh target, tracker gone) stops.
+
+Limits, applied to every command whatever produced it (dt: time since the previous command):
+
+    |v| <= v_max (0.75 m/s),  |v - v_prev| <= a dt (a = accel, or decel when |v| shrinks)
+    |w| <= w_max (100 deg/s), |w - w_prev| <= alpha dt
+    |pan| <= 100 deg,         |pan - pan_prev| <= 90 deg/s * dt
+
+so a stop is a ramp: from v_max at 2 m/s^2 braking the base is at rest within 0.375 s.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import msgspec
+
+from followbot.schemas import TrackState
+
+__all__ = ["Command", "ControllerSettings", "FollowController"]
+
+_Pos = Annotated[float, msgspec.Meta(gt=0)]
+
+
+class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    # thesis 4.6: turn only beyond [-6 deg, +6 deg]
+    dead_band_deg: Annotated[float, msgspec.Meta(ge=0, le=180)] = 6.0
+    # thesis 4.6: r < 1.2 m stop, 1.2..1.5 m the person's speed, > 1.5 m v_max = 0.75 m/s
+    stop_distance_m: Annotated[float, msgspec.Meta(ge=0)] = 1.2
+    match_distance_m: Annotated[float, msgspec.Meta(ge=0)] = 1.5
+    max_speed_mps: _Pos = 0.75
+    # thesis 5.2.5: rotation at most 100 deg/s; pan 90 deg/s within +-100 deg
+    max_turn_deg_s: _Pos = 100.0
+    pan_rate_deg_s: _Pos = 90.0
+    pan_limit_deg: Annotated[float, msgspec.Meta(ge=0, le=180)] = 100.0
+    turn_gain_per_s: _Pos = 1.5
+    """w* = gain * theta: the base turns to the heading in about 1/gain seconds."""
+    accel_mps2: _Pos = 0.5
+    decel_mps2: _Pos = 2.0
+    """Braking (|v| decreasing) may be harder than speeding up."""
+    turn_accel_deg_s2: _Pos = 300.0
+    reverse: bool = False
+    """Never drive backwards unless allowed (the thesis robot only follows)."""
+
+
+class Command(msgspec.Struct, frozen=True):
+    linear_mps: float
+    angular_radps: float
+    pan_rad: float
+    reason: str
+
+
+def _toward(value: float, goal: float, max_step: float) -> float:
+    return value + min(max(goal - value, -max_step), max_step)
+
+
+def _clamp(value: float, limit: float) -> float:
+    return min(max(value, -limit), limit)
+
+
+class FollowController:
+    """Turns TrackStates into limited (v, w, pan) commands. One loop drives it."""
+
+    def __init__(self, settings: ControllerSettings | None = None) -> None:
+        self.settings = s = settings or ControllerSettings()
+        if s.match_distance_m < s.stop_distance_m:
+            raise ValueError("match_distance_m must be >= stop_distance_m")
+        self._w_max = math.radians(s.max_turn_deg_s)
+        self._alpha = math.radians(s.turn_accel_deg_s2)
+        self._pan_max = math.radians(s.pan_limit_deg)
+        self._pan_rate = math.radians(s.pan_rate_deg_s)
+        self._dead = math.radians(s.dead_band_deg)
+        self.v = 0.0
+        self.w = 0.0
+        self.pan = 0.0
+        self._goal = (0.0, 0.0, 0.0)
+        self._goal_reason = "initialising"
+
+    # ------------------------------------------------------------------ the rule
+
+    def goal(self, target: TrackState) -> tuple[float, float, float, str]:
+        """(v*, w*, pan*, reason) of the thesis rule, before limits."""
+        s = self.settings
+        status = target.status
+        if status == "coasting":
+            v, w, pan = self._goal
+            return v, w, pan, "coasting"
+        if status != "tracking":
+            return 0.0, 0.0, self.pan, status  # lost / initialising: stop, camera stays
+        x, y = target.x_m, target.y_m
+        r = math.hypot(x, y)
+        theta = math.atan2(y, x)
+        speed = math.hypot(target.vx_mps, target.vy_mps)
+        w = s.turn_gain_per_s * theta if abs(theta) > self._dead else 0.0
+        if r < s.stop_distance_m:
+            v, reason = 0.0, "stop_close"
+        elif r <= s.match_distance_m:
+            v, reason = speed, "match_speed"
+        else:
+            v, reason = s.max_speed_mps, "max_speed"
+        return v, w, theta, reason
+
+    # ------------------------------------------------------------------ commands
+
+    def on_target(self, target: TrackState, dt_s: float) -> Command:
+        v, w, pan, reason = self.goal(target)
+        if target.status == "tracking":
+            self._goal = (v, w, pan)
+        elif target.status != "coasting":
+            self._goal = (0.0, 0.0, self.pan)
+        return self._limit(v, w, pan, reason, dt_s)
+
+    def stop(self, dt_s: float, reason: str = "watchdog") -> Command:
+        """Brake towards zero velocity (the watchdog); the camera holds its angle."""
+        self._goal = (0.0, 0.0, self.pan)
+        return self._limit(0.0, 0.0, self.pan, reason, dt_s)
+
+    def _limit(self, v: float, w: float, pan: float, reason: str, dt_s: float) -> Command:
+        s = self.settings
+        dt = max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
+        if not (math.isfinite(v) and math.isfinite(w) and math.isfinite(pan)):
+            v, w, pan, reason = 0.0, 0.0, self.pan, "invalid"
+        lo = -s.max_speed_mps if s.reverse else 0.0
+        v = min(max(v, lo), s.max_speed_mps)
+        # speeding up at accel, braking (towards zero) at decel
+        speeding_up = abs(v) > abs(self.v) and v * self.v >= 0
+        step = (s.accel_mps2 if speeding_up else s.decel_mps2) * dt
+        v = _toward(self.v, v, step)
+        if abs(v) > abs(self.v) and abs(v - self.v) > s.accel_mps2 * dt:
+            v = self.v + math.copysign(s.accel_mps2 * dt, v - self.v)
+        w = _toward(self.w, _clamp(w, self._w_max), self._alpha * dt)
+        pan = _toward(self.pan, _clamp(pan, self._pan_max), self._pan_rate * dt)
+        self.v, self.w, self.pan = v, w, pan
+        return Command(v, w, pan, reason)
+
+    @property
+    def at_rest(self) -> bool:
+        return self.v == 0.0 and self.w == 0.0

@@ -1,0 +1,117 @@
+"""controller: follow the target -- control/cmd_vel and control/pan from tracking/target.
+
+One VelocityCommand and one PanCommand per TrackState, naming its scan stamp (lock-step
+rule 2). A watchdog timer brakes to zero velocity (reason ``stale``) when no target arrived for
+``stale_after_s`` of wall time, or at once (reason ``tracker_gone``) when the tracker's
+liveliness token disappears; its commands carry the stamp of the last target. Limits hold for
+every command (core.py).
+
+    followbot run controller --set max_speed_mps=0.5
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated
+
+import msgspec
+
+from followbot.schemas import PanCommand, TrackState, VelocityCommand
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.service import service_main
+from followbot.services.tracker.node import _with_node_settings
+
+from .core import Command, ControllerSettings, FollowController
+
+__all__ = ["ControllerNodeSettings", "main", "setup"]
+
+_ControllerNodeBase = _with_node_settings(ControllerSettings, "_ControllerNodeBase")
+
+
+class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_fields=True):
+    stale_after_s: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    """No target for this long (wall clock) -> brake to zero. 0 disables (lock-step on a slow
+    machine, where wall time between scans means nothing)."""
+    watchdog_period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.05
+    tracker_service: str = "tracker"
+    nominal_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
+    """dt for the first target and after gaps longer than max_dt_s."""
+    max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+
+
+def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
+    names = ControllerSettings.__struct_fields__
+    ctl = FollowController(ControllerSettings(**{n: getattr(settings, n) for n in names}))
+    cmd_pub = node.publisher("control/cmd_vel")
+    pan_pub = node.publisher("control/pan")
+    st = {
+        "last_target": None,  # monotonic s of the last target
+        "last_stamp": None,  # its stamp_ns
+        "last_out": None,  # monotonic s of the last command
+        "watchdog_out": False,  # was the last command the watchdog's?
+        "tracker_alive": None,  # None: not known yet
+    }
+
+    def publish(c: Command, stamp_ns: int) -> None:
+        cmd_pub.put(
+            VelocityCommand(
+                stamp_ns=stamp_ns,
+                frame_id="base_link",
+                linear_mps=c.linear_mps,
+                angular_radps=c.angular_radps,
+                reason=c.reason,
+            )
+        )
+        pan_pub.put(
+            PanCommand(stamp_ns=stamp_ns, frame_id="base_link", pan_rad=c.pan_rad, reason=c.reason)
+        )
+        st["last_out"] = time.monotonic()
+
+    def on_target(t: TrackState) -> None:
+        now = time.monotonic()
+        last_stamp = st["last_stamp"]
+        if st["watchdog_out"] and st["last_out"] is not None:
+            dt = now - st["last_out"]
+        elif last_stamp is not None and 0 < t.stamp_ns - last_stamp <= settings.max_dt_s * 1e9:
+            dt = (t.stamp_ns - last_stamp) / 1e9
+        elif last_stamp is not None and t.stamp_ns <= last_stamp:
+            dt = 0.0  # repeated or older stamp: answer it, change nothing
+        else:
+            dt = settings.nominal_dt_s
+        c = ctl.on_target(t, dt)
+        st["last_target"] = now
+        st["last_stamp"] = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
+        st["watchdog_out"] = False
+        publish(c, t.stamp_ns)
+
+    def watchdog() -> None:
+        now = time.monotonic()
+        gone = st["tracker_alive"] is False
+        stale = settings.stale_after_s > 0 and (
+            st["last_target"] is None or now - st["last_target"] > settings.stale_after_s
+        )
+        if not (gone or stale):
+            return
+        if st["last_target"] is None and ctl.at_rest and st["last_out"] is not None:
+            return  # never followed anyone and already said zero
+        if ctl.at_rest and st["watchdog_out"]:
+            return  # already braked to rest and said so
+        dt = settings.watchdog_period_s if st["last_out"] is None else now - st["last_out"]
+        c = ctl.stop(dt, "tracker_gone" if gone else "stale")
+        publish(c, st["last_stamp"] or 0)
+        st["watchdog_out"] = True
+
+    def on_tracker_alive(alive: bool) -> None:
+        st["tracker_alive"] = alive
+        if not alive:
+            node.log.warning("tracker liveliness gone: braking to zero velocity")
+            watchdog()
+
+    node.subscribe("tracking/target", on_target, policy="all")
+    node.watch_alive(settings.tracker_service, on_tracker_alive)
+    node.every(settings.watchdog_period_s, watchdog, name="watchdog")
+    return ctl
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main("controller", ControllerNodeSettings, setup, argv, __doc__)

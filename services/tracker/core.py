@@ -1,0 +1,597 @@
+"""The tracker: every person in the laser, one of them the target; ego-motion, late vision.
+
+Pure logic on numpy arrays and messages, no Zenoh (the node is ``node.py``). DESIGN.md
+"Particle filter" and "Timing model"; thesis 3.6, 4.5.
+
+Ego-motion (thesis 3.6.2.3, corrected)
+--------------------------------------
+Odometry gives the robot's pose T = (t, theta) in the odometry frame. A point p0 in the base
+frame at pose T0 is, in the base frame at pose T1,
+
+    p1 = T1^-1 T0 p0 = R(theta0 - theta1) p0 + R(-theta1) (t0 - t1)        (:func:`se2_change`)
+
+Eq. 3-31 as printed subtracts the odometry translation t1 - t0 without rotating it into the new
+base frame (:func:`thesis_printed_transform`, kept for the test that shows the difference).
+The pose at a scan's stamp is interpolated between the odometry messages around it (linear in
+x, y, shortest-way in yaw), or extrapolated a little with the last twist
+(:class:`OdometryBuffer`). Without odometry for a scan the step goes on uncompensated and the
+status carries the flag ``no_odometry``.
+
+One step per candidates message (:meth:`Tracker.step`)
+------------------------------------------------------
+1. ego-motion of every track from the previous scan's frame to this one;
+2. predict every track by the time between the scans;
+3. apply the verifications that are due (below) -- they settle *which* track is the target;
+4. associate candidates with tracks: distances from each estimator, gated, then the assignment
+   of least total distance (Hungarian, ``scipy.optimize.linear_sum_assignment``);
+5. update the matched tracks; count a miss on the others; start a track on every unmatched
+   candidate; delete a track after more than ``max_misses`` consecutive misses (thesis: 8, about
+   1 s) or when its estimator says so (the UKF's variance rule);
+6. record which track took which candidate of this scan (the history late vision needs);
+7. report the target (``TrackState``) and every confirmed person (``People``).
+
+Target status: ``initialising`` (no target yet), ``tracking`` (the target took a candidate
+this scan), ``coasting`` (1..max_misses misses: the estimate is a prediction), ``lost`` (more
+than max_misses misses: the robot stops; the target's track is deleted and a new one is taken
+only by appearance, or -- without vision -- near where it was lost).
+
+Late vision (DESIGN.md "Timing model")
+--------------------------------------
+A :class:`~followbot.schemas.Verification` names the scan stamp whose candidates it judged.
+The tracker keeps, for the last ``history_scans`` scans, which track took each candidate and
+the odometry pose at the scan, so a verification is applied to the state *as of that scan*:
+the chosen candidate's track (or, if that track is gone, the track nearest to the chosen
+position carried to the current frame by odometry) becomes the target when there is none, and
+replaces the current target after ``switch_votes`` consecutive verifications that prefer it.
+In lock-step runs ``vision_lag_scans = N`` holds the verification of scan k until the step of
+scan k + N (at least the next step: the tracker never waits for vision).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import OrderedDict
+from typing import Annotated, Any, Literal
+
+import msgspec
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from followbot.schemas import (
+    Odometry,
+    People,
+    PersonCandidates,
+    PersonTrack,
+    TargetModel,
+    TrackState,
+    Verification,
+)
+
+from .estimators import Estimator, estimator_factory, wrap_angle
+
+__all__ = [
+    "OdometryBuffer",
+    "Pose",
+    "Track",
+    "Tracker",
+    "TrackerSettings",
+    "se2_change",
+    "thesis_printed_transform",
+    "transform_points",
+]
+
+Pose = tuple[float, float, float]
+_NS = 1_000_000_000
+_NO_VISION = ("no_vision", "vision_stale")
+
+
+# --------------------------------------------------------------------------- ego-motion
+
+
+def _rot(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def se2_change(pose0: Pose, pose1: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) with p1 = R p0 + t: base frame at odometry pose ``pose0`` -> at ``pose1``.
+
+    R = R(theta0 - theta1), t = R(-theta1) (t0 - t1)  (p1 = T1^-1 T0 p0).
+    """
+    x0, y0, th0 = pose0
+    x1, y1, th1 = pose1
+    rotation = _rot(th0 - th1)
+    translation = _rot(-th1) @ np.array([x0 - x1, y0 - y1])
+    return rotation, translation
+
+
+def transform_points(points: np.ndarray, pose0: Pose, pose1: Pose) -> np.ndarray:
+    """(n, 2) points in the base frame at ``pose0`` expressed in the base frame at ``pose1``."""
+    rotation, translation = se2_change(pose0, pose1)
+    return np.asarray(points, dtype=float) @ rotation.T + translation
+
+
+def thesis_printed_transform(points: np.ndarray, pose0: Pose, pose1: Pose) -> np.ndarray:
+    """Eq. 3-31 exactly as printed (thesis p. 3.6.2.3), for comparison only: wrong whenever the
+    robot both turns and moves, because the translation is not rotated into the new frame.
+
+        d0 = |p0|, theta0 = atan2(y0, x0), theta_r = theta_r1 - theta_r0
+        x1 = d0 cos(theta0 + theta_r) - (x_r1 - x_r0)
+        y1 = d0 sin(theta0 + theta_r) - (y_r1 - y_r0)
+    """
+    p = np.asarray(points, dtype=float)
+    d0 = np.hypot(p[:, 0], p[:, 1])
+    a0 = np.arctan2(p[:, 1], p[:, 0])
+    th_r = pose1[2] - pose0[2]
+    return np.column_stack(
+        [
+            d0 * np.cos(a0 + th_r) - (pose1[0] - pose0[0]),
+            d0 * np.sin(a0 + th_r) - (pose1[1] - pose0[1]),
+        ]
+    )
+
+
+class OdometryBuffer:
+    """Odometry poses by stamp; the pose at any stamp in range, interpolated.
+
+    Out-of-order messages are inserted in order; the oldest are forgotten beyond ``capacity``.
+    A stamp after the newest message is extrapolated along the last twist (an arc) for at most
+    ``max_extrapolation_ns``; a stamp before the oldest has no pose.
+    """
+
+    def __init__(self, capacity: int = 4096, max_extrapolation_ns: int = 100_000_000) -> None:
+        self.capacity = capacity
+        self.max_extrapolation_ns = max_extrapolation_ns
+        self._stamps: list[int] = []
+        self._poses: list[tuple[float, float, float, float, float]] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, odom: Odometry) -> None:
+        item = (odom.x_m, odom.y_m, odom.yaw_rad, odom.v_mps, odom.w_radps)
+        stamps = self._stamps
+        if not stamps or odom.stamp_ns > stamps[-1]:
+            stamps.append(odom.stamp_ns)
+            self._poses.append(item)
+        else:
+            i = bisect.bisect_left(stamps, odom.stamp_ns)
+            if i < len(stamps) and stamps[i] == odom.stamp_ns:
+                self._poses[i] = item
+            else:
+                stamps.insert(i, odom.stamp_ns)
+                self._poses.insert(i, item)
+        if len(stamps) > self.capacity:
+            drop = len(stamps) - self.capacity // 2
+            del stamps[:drop]
+            del self._poses[:drop]
+
+    def pose_at(self, stamp_ns: int) -> Pose | None:
+        stamps = self._stamps
+        if not stamps or stamp_ns < stamps[0]:
+            return None
+        if stamp_ns >= stamps[-1]:
+            dt_ns = stamp_ns - stamps[-1]
+            if dt_ns > self.max_extrapolation_ns:
+                return None
+            x, y, th, v, w = self._poses[-1]
+            dt = dt_ns / _NS
+            if abs(w) > 1e-9:
+                x += v / w * (math.sin(th + w * dt) - math.sin(th))
+                y -= v / w * (math.cos(th + w * dt) - math.cos(th))
+            else:
+                x += v * dt * math.cos(th)
+                y += v * dt * math.sin(th)
+            return (x, y, th + w * dt)
+        i = bisect.bisect_right(stamps, stamp_ns)  # stamps[i-1] <= stamp < stamps[i]
+        s0, s1 = stamps[i - 1], stamps[i]
+        p0, p1 = self._poses[i - 1], self._poses[i]
+        f = (stamp_ns - s0) / (s1 - s0)
+        dth = float(wrap_angle(p1[2] - p0[2]))
+        return (p0[0] + f * (p1[0] - p0[0]), p0[1] + f * (p1[1] - p0[1]), p0[2] + f * dth)
+
+
+# --------------------------------------------------------------------------- settings, tracks
+
+
+class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    estimator: str = "particle"
+    """Estimator plugin (entry-point group followbot.estimators): particle, ukf, ..."""
+    estimator_settings: dict[str, Any] = {}
+    """Overrides of the estimator's own settings, e.g. {particles: 500, resampler: sorted_copy}."""
+    seed: int = 0
+    """Seed of every random draw (each track's Generator is seeded with [seed, track id])."""
+    # thesis 3.6.2.8 / DESIGN.md: lost after more than 8 consecutive misses (~1 s at 120 ms)
+    max_misses: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = 8
+    confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
+    """A new track is reported in tracking/people once it took this many candidates."""
+    acquire: Literal["vision", "nearest"] = "vision"
+    """How the first target is chosen: by vision (a verification or perception/target_model),
+    or, without a camera, the nearest candidate ahead within acquire_range_m."""
+    acquire_range_m: Annotated[float, msgspec.Meta(gt=0)] = 3.0
+    acquire_bearing_deg: Annotated[float, msgspec.Meta(gt=0, le=180)] = 45.0
+    model_match_m: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+    """A target model's position takes the nearest track within this distance, else a new one."""
+    laser_reacquire_m: Annotated[float, msgspec.Meta(ge=0)] = 0.7
+    """Without vision only: a lost target is re-taken by the track nearest to where it was lost,
+    within this distance (0: never without vision)."""
+    switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    """Consecutive verifications preferring another track before the target moves to it."""
+    vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
+    """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
+    vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    """No verification newer than this (scan clock) -> flag vision_stale, gate on laser alone."""
+    history_scans: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 64
+    max_odometry_extrapolation_s: Annotated[float, msgspec.Meta(ge=0)] = 0.1
+    default_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
+    """Time step of the first scan (thesis 4.1.1: 120 ms)."""
+    max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    """Longer gaps between scans are clamped (a paused recording must not explode the cloud)."""
+
+
+class Track:
+    """One tracked person: an estimator plus the bookkeeping of the tracker."""
+
+    __slots__ = ("born_ns", "estimator", "hits", "id", "last_seen_ns", "misses")
+
+    def __init__(self, track_id: int, estimator: Estimator, stamp_ns: int) -> None:
+        self.id = track_id
+        self.estimator = estimator
+        self.misses = 0
+        self.hits = 1
+        self.born_ns = stamp_ns
+        self.last_seen_ns = stamp_ns
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.estimator.mean[:2]
+
+
+class _Scan(msgspec.Struct):
+    index: int
+    pose: Pose | None
+    assoc: dict[int, int]  # candidate index -> track id
+
+
+# --------------------------------------------------------------------------- the tracker
+
+
+class Tracker:
+    """All people in the laser, one of them the target. Not thread-safe: one loop drives it."""
+
+    def __init__(self, settings: TrackerSettings | None = None) -> None:
+        self.settings = s = settings or TrackerSettings()
+        self._make = estimator_factory(s.estimator, s.estimator_settings)
+        self.estimator_name = s.estimator
+        self.odometry = OdometryBuffer(
+            max_extrapolation_ns=int(s.max_odometry_extrapolation_s * _NS)
+        )
+        self.tracks: dict[int, Track] = {}
+        self.target_id = -1
+        self._next_id = 1
+        self._had_target = False
+        self._lost_at: np.ndarray | None = None  # last target position, carried by ego-motion
+        self._last_stamp: int | None = None
+        self._last_pose: Pose | None = None
+        self._index = 0
+        self._history: OrderedDict[int, _Scan] = OrderedDict()
+        self._pending: list[Verification] = []
+        self._model: TargetModel | None = None
+        self._switch: tuple[int, int] = (-1, 0)  # (track preferred by vision, consecutive votes)
+        self._vision_stamp: int | None = None
+        self._vision_sources = False
+        self.vision_alive = False
+        # counters for health and tests
+        self.verifications_applied = 0
+        self.verifications_unmatched = 0
+        self.target_switches = 0
+        self.steps_without_odometry = 0
+
+    # ------------------------------------------------------------------ inputs
+
+    def add_odometry(self, odom: Odometry) -> None:
+        self.odometry.add(odom)
+
+    def add_verification(self, verification: Verification) -> None:
+        """Queue a verification; it is applied at a later :meth:`step` (never waits for it)."""
+        self._pending.append(verification)
+
+    def set_target_model(self, model: TargetModel) -> None:
+        """A (re)built target model: its laser position is where the target is (thesis 4.5)."""
+        self._model = model
+
+    def set_vision_alive(self, alive: bool) -> None:
+        self.vision_alive = alive
+
+    def reset(self) -> None:
+        """Forget every track and the target (thesis: re-initialise)."""
+        self.tracks.clear()
+        self.target_id = -1
+        self._had_target = False
+        self._lost_at = None
+        self._switch = (-1, 0)
+
+    # ------------------------------------------------------------------ the step
+
+    def step(self, candidates: PersonCandidates) -> tuple[TrackState, People]:
+        """One scan: ego-motion, predict, late vision, associate, update; the two outputs."""
+        s = self.settings
+        stamp = candidates.stamp_ns
+        flags: list[str] = []
+        sources: list[str] = []
+        if self._last_stamp is not None and stamp <= self._last_stamp:
+            # a repeated or older scan: the state cannot go back; answer without changing it
+            return self._outputs(stamp, candidates.frame_id, ["out_of_order"], [])
+        dt = s.default_dt_s if self._last_stamp is None else (stamp - self._last_stamp) / _NS
+        dt = min(dt, s.max_dt_s)
+
+        # 1. ego-motion
+        pose = self.odometry.pose_at(stamp)
+        if pose is not None and self._last_pose is not None:
+            rotation, translation = se2_change(self._last_pose, pose)
+            for t in self.tracks.values():
+                t.estimator.ego_motion(rotation, translation)
+            if self._lost_at is not None:
+                self._lost_at = rotation @ self._lost_at + translation
+            sources.append("odometry")
+        elif pose is None:
+            flags.append("no_odometry")
+            self.steps_without_odometry += 1
+        self._last_pose = pose
+        self._last_stamp = stamp
+
+        # 2. predict
+        for t in self.tracks.values():
+            t.estimator.predict(dt, t.misses)
+
+        # 3. late vision, as of the scans it names
+        self._vision_sources = False
+        self._apply_due_verifications(pose)
+        if self._model is not None:
+            self._take_model(pose)
+
+        # 4. associate
+        cands = candidates.candidates
+        z = np.array([[c.x_m, c.y_m] for c in cands], dtype=float).reshape(-1, 2)
+        ids = list(self.tracks)
+        matched: dict[int, int] = {}  # track id -> candidate index
+        if ids and len(z):
+            cost = np.empty((len(ids), len(z)))
+            for r, tid in enumerate(ids):
+                t = self.tracks[tid]
+                d = t.estimator.distance(z, t.misses)
+                cost[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
+            finite = np.isfinite(cost)
+            if finite.any():
+                big = 1e6 + 2.0 * float(cost[finite].max(initial=0.0))
+                rows, cols = linear_sum_assignment(np.where(finite, cost, big))
+                for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+                    if finite[r, c]:
+                        matched[ids[r]] = c
+
+        # 5. update, count misses, start and delete tracks
+        for tid in ids:
+            t = self.tracks[tid]
+            if tid in matched:
+                t.estimator.update(z[matched[tid]])
+                t.misses = 0
+                t.hits += 1
+                t.last_seen_ns = stamp
+            else:
+                t.misses += 1
+        taken = set(matched.values())
+        for c in range(len(z)):
+            if c not in taken:
+                tid = self._new_track(z[c], stamp)
+                matched[tid] = c
+        for tid in list(self.tracks):
+            t = self.tracks[tid]
+            if t.misses > s.max_misses or t.estimator.expired():
+                if tid == self.target_id:
+                    self._lose_target(t)
+                del self.tracks[tid]
+
+        if not self.vision_alive:
+            flags.append("no_vision")
+        elif self._vision_stamp is None or stamp - self._vision_stamp > s.vision_stale_s * _NS:
+            flags.append("vision_stale")
+
+        # acquisition without vision (settings) and laser-only re-acquisition
+        if self.target_id < 0:
+            self._acquire_by_laser(z, matched, vision=not any(f in _NO_VISION for f in flags))
+        if self.target_id >= 0 and self.target_id in matched:
+            sources.insert(0, "laser")
+        if self._vision_sources:
+            sources.append("vision")
+
+        # 6. history for late verifications
+        self._history[stamp] = _Scan(self._index, pose, {c: tid for tid, c in matched.items()})
+        while len(self._history) > s.history_scans:
+            self._history.popitem(last=False)
+        self._index += 1
+        return self._outputs(stamp, candidates.frame_id, flags, sources)
+
+    # ------------------------------------------------------------------ target choice
+
+    def _new_track(self, xy: np.ndarray, stamp_ns: int) -> int:
+        tid = self._next_id
+        self._next_id += 1
+        rng = np.random.default_rng([self.settings.seed, tid])
+        self.tracks[tid] = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
+        return tid
+
+    def _set_target(self, tid: int) -> None:
+        if self.target_id >= 0 and tid != self.target_id:
+            self.target_switches += 1
+        self.target_id = tid
+        self._had_target = True
+        self._lost_at = None
+        self._switch = (-1, 0)
+
+    def _lose_target(self, track: Track) -> None:
+        self._lost_at = np.array(track.position, dtype=float)
+        self.target_id = -1
+        self._switch = (-1, 0)
+
+    def _acquire_by_laser(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
+        s = self.settings
+        if not self._had_target and s.acquire == "nearest" and len(z):
+            r = np.hypot(z[:, 0], z[:, 1])
+            bearing = np.abs(np.arctan2(z[:, 1], z[:, 0]))
+            ahead = (bearing <= math.radians(s.acquire_bearing_deg)) & (r <= s.acquire_range_m)
+            if ahead.any():
+                c = int(np.argmin(np.where(ahead, r, np.inf)))
+                for tid, ci in matched.items():
+                    if ci == c:
+                        self._set_target(tid)
+                        return
+        lost_at = self._lost_at
+        if self._had_target and not vision and lost_at is not None and s.laser_reacquire_m > 0:
+            best, best_d = -1, s.laser_reacquire_m
+            for tid, ci in matched.items():
+                d = float(np.hypot(*(z[ci] - self._lost_at)))
+                if d <= best_d:
+                    best, best_d = tid, d
+            if best >= 0:
+                self._set_target(best)
+
+    def _take_model(self, pose: Pose | None) -> None:
+        model, self._model = self._model, None
+        xy = np.array([[model.x_m, model.y_m]])
+        then = self.odometry.pose_at(model.stamp_ns)
+        if then is not None and pose is not None:
+            xy = transform_points(xy, then, pose)
+        tid = self._nearest_track(xy[0], self.settings.model_match_m)
+        if tid < 0:
+            tid = self._new_track(xy[0], model.stamp_ns)
+        self._set_target(tid)
+        self._vision_sources = True
+
+    def _nearest_track(self, xy: np.ndarray, within_m: float) -> int:
+        best, best_d = -1, within_m
+        for tid, t in self.tracks.items():
+            d = float(np.hypot(*(t.position - xy)))
+            if d <= best_d:
+                best, best_d = tid, d
+        return best
+
+    def _apply_due_verifications(self, pose: Pose | None) -> None:
+        if not self._pending:
+            return
+        lag = max(self.settings.vision_lag_scans, 1)
+        keep: list[Verification] = []
+        for v in self._pending:
+            scan = self._history.get(v.stamp_ns)
+            if scan is None:
+                if self._last_stamp is None or v.stamp_ns >= self._last_stamp:
+                    keep.append(v)  # its scan has not been processed yet
+                else:
+                    self.verifications_unmatched += 1  # too old, or names no scan seen here
+                continue
+            if self._index - scan.index < lag:
+                keep.append(v)
+                continue
+            self._apply_verification(v, scan, pose)
+        self._pending = keep
+
+    def _apply_verification(self, v: Verification, scan: _Scan, pose: Pose | None) -> None:
+        self.verifications_applied += 1
+        if self._vision_stamp is None or v.stamp_ns > self._vision_stamp:
+            self._vision_stamp = v.stamp_ns
+        if v.chosen < 0:
+            return
+        chosen = v.candidates[v.chosen]
+        tid = scan.assoc.get(chosen.index, -1)
+        if tid not in self.tracks:
+            # that track is gone: carry the chosen position to now and take the nearest track
+            xy = np.array([[chosen.x_m, chosen.y_m]])
+            if scan.pose is not None and pose is not None:
+                xy = transform_points(xy, scan.pose, pose)
+            tid = self._nearest_track(xy[0], self.settings.model_match_m)
+            if tid < 0:
+                return
+        if self.target_id < 0:
+            self._set_target(tid)  # (re-)acquisition by appearance
+            self._vision_sources = True
+            return
+        if tid == self.target_id:
+            self._switch = (-1, 0)
+            self._vision_sources = True
+            return
+        prev, votes = self._switch
+        votes = votes + 1 if prev == tid else 1
+        self._switch = (tid, votes)
+        if votes >= self.settings.switch_votes:
+            self._set_target(tid)
+            self._vision_sources = True
+
+    # ------------------------------------------------------------------ outputs
+
+    def status(self) -> str:
+        if self.target_id >= 0:
+            return "tracking" if self.tracks[self.target_id].misses == 0 else "coasting"
+        return "lost" if self._had_target else "initialising"
+
+    def _outputs(
+        self, stamp: int, frame_id: str, flags: list[str], sources: list[str]
+    ) -> tuple[TrackState, People]:
+        status = self.status()
+        if self.target_id >= 0:
+            t = self.tracks[self.target_id]
+            m, cov = t.estimator.mean, t.estimator.covariance
+            target = TrackState(
+                stamp_ns=stamp,
+                frame_id=frame_id,
+                status=status,
+                track_id=t.id,
+                x_m=float(m[0]),
+                y_m=float(m[1]),
+                vx_mps=float(m[2]),
+                vy_mps=float(m[3]),
+                covariance=[float(c) for c in cov.reshape(-1)],
+                misses=t.misses,
+                sources=sources,
+                flags=flags,
+                estimator=self.estimator_name,
+            )
+        else:
+            x, y = (0.0, 0.0) if self._lost_at is None else map(float, self._lost_at)
+            target = TrackState(
+                stamp_ns=stamp,
+                frame_id=frame_id,
+                status=status,
+                x_m=x,
+                y_m=y,
+                misses=0,
+                sources=sources,
+                flags=flags,
+                estimator=self.estimator_name,
+            )
+        s = self.settings
+        tracks = []
+        for t in self.tracks.values():
+            if t.hits < s.confirm_hits and t.id != self.target_id:
+                continue
+            m = t.estimator.mean
+            tracks.append(
+                PersonTrack(
+                    id=t.id,
+                    x_m=float(m[0]),
+                    y_m=float(m[1]),
+                    vx_mps=float(m[2]),
+                    vy_mps=float(m[3]),
+                    covariance=[float(c) for c in t.estimator.covariance.reshape(-1)],
+                    misses=t.misses,
+                    age_s=max(0.0, (stamp - t.born_ns) / _NS),
+                    confidence=1.0 - t.misses / (s.max_misses + 1),
+                )
+            )
+        people = People(
+            stamp_ns=stamp,
+            frame_id=frame_id,
+            tracks=tracks[:256],
+            target_id=self.target_id,
+            estimator=self.estimator_name,
+        )
+        return target, people

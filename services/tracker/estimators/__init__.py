@@ -1,0 +1,78 @@
+"""Per-person estimators, chosen by name (issue 6; DESIGN.md "Presets").
+
+``estimator_factory("particle")`` returns a callable ``(x_m, y_m, rng) -> Estimator`` that the
+tracker calls for each new track. Estimators are plugins of the entry-point group
+``followbot.estimators`` (the built-in ones are declared in pyproject.toml), so another package
+can add its own: a class with ``name``, ``settings_type`` (a frozen msgspec Struct) and the
+methods of :class:`~.base.Estimator`, constructed as ``cls(x_m, y_m, settings, rng)``.
+An unknown name fails with the list of valid ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from followbot.services.runtime.plugins import Registry
+
+from .base import Estimator, wrap_angle
+from .particle import (
+    ParticleEstimator,
+    ParticleSettings,
+    sorted_copy_resample,
+    systematic_resample,
+)
+from .ukf import UKFEstimator, UKFSettings
+
+__all__ = [
+    "BUILTIN",
+    "Estimator",
+    "ParticleEstimator",
+    "ParticleSettings",
+    "UKFEstimator",
+    "UKFSettings",
+    "estimator_factory",
+    "registry",
+    "sorted_copy_resample",
+    "systematic_resample",
+    "wrap_angle",
+]
+
+#: The built-in estimators (also declared as entry points).
+BUILTIN: dict[str, type] = {"particle": ParticleEstimator, "ukf": UKFEstimator}
+
+registry = Registry("estimators")
+
+EstimatorFactory = Callable[[float, float, np.random.Generator], Estimator]
+
+
+def _load(name: str) -> type:
+    if name in BUILTIN and name not in registry.names():
+        return BUILTIN[name]  # running from a tree whose entry points are not installed yet
+    return registry.load(name)
+
+
+def estimator_factory(name: str = "particle", settings: Any = None) -> EstimatorFactory:
+    """A constructor of ``name``'s estimators with ``settings`` (a Struct or a mapping)."""
+    cls = _load(name)
+    settings_type = cls.settings_type
+    if settings is None:
+        s = settings_type()
+    elif isinstance(settings, settings_type):
+        s = settings
+    elif isinstance(settings, Mapping):
+        try:
+            s = msgspec.convert(dict(settings), settings_type, strict=False)
+        except msgspec.ValidationError as exc:
+            raise ValueError(f"estimator {name!r} settings: {exc}") from None
+    else:
+        raise TypeError(f"settings for {name!r} must be {settings_type.__name__} or a mapping")
+
+    def make(x_m: float, y_m: float, rng: np.random.Generator) -> Estimator:
+        return cls(x_m, y_m, s, rng)
+
+    make.estimator_name = name  # type: ignore[attr-defined]
+    return make

@@ -1,0 +1,208 @@
+"""The thesis's particle filter (thesis 3.6.2, 4.5; DESIGN.md "Particle filter"), vectorised.
+
+State of particle i: s_i = [x, y, vx, vy] in the base frame of the current scan. Per scan:
+
+    ego-motion   p_i <- R p_i + t,  v_i <- R v_i          (R, t: SE(2) change, see core.py)
+    propagate    v_i ~ N(0, sigma_v^2 I)  drawn afresh     (eq. 3-30, sigma_v = 1 m/s)
+                 p_i <- p_i + v_i dT
+    weight       w_i = exp(-(d_m - d_i)^2 / sigma_d^2) exp(-(A_m - A_i)^2 / sigma_A^2)
+                 d_i = |p_i|, A_i = atan2(y_i, x_i)      (eq. 3-32..3-36; 100 mm, 5 deg)
+    normalise    w_i <- w_i / sum_j w_j                  (eq. 3-37)
+    estimate     s_hat = sum_i w_i s_i                   (eq. 3-38, MMSE)
+    resample     systematic (numpy.searchsorted on the cumulative weights, one uniform draw)
+                 or the thesis's sorted-copy scheme (4.5)
+
+Without a measurement (a miss) the particles are only propagated, so the cloud spreads by
+sigma_v dT per scan and the estimate is the cloud's mean.
+
+The particles live in one (4, m) array: each row is contiguous, so every step is a handful of
+numpy calls on rows, the random draws fill a preallocated buffer in place, and nothing is
+allocated per particle. Randomness comes from a seeded ``numpy.random.Generator`` only.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import msgspec
+import numpy as np
+
+__all__ = [
+    "ParticleEstimator",
+    "ParticleSettings",
+    "sorted_copy_resample",
+    "systematic_resample",
+]
+
+
+class ParticleSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    # thesis 4.5: 150 particles
+    particles: Annotated[int, msgspec.Meta(ge=1, le=1_000_000)] = 150
+    # thesis 4.5: sigma_vx = sigma_vy = 1 m/s
+    velocity_std_mps: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    # thesis 4.5: sigma_d = 100 mm, sigma_A = 5 deg (used as exp(-e^2 / sigma^2), eq. 3-36)
+    range_std_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
+    bearing_std_deg: Annotated[float, msgspec.Meta(gt=0)] = 5.0
+    velocity_model: Literal["random_walk", "constant_velocity"] = "random_walk"
+    """random_walk: the thesis's eq. 3-30, v drawn afresh from N(0, sigma_v^2) every step.
+    constant_velocity: v_k = v_{k-1} + N(0, (accel_std dT)^2), an alternative that keeps the
+    velocity from step to step (less lag, unbiased speed; not the thesis)."""
+    accel_std_mps2: Annotated[float, msgspec.Meta(gt=0)] = 1.5
+    """constant_velocity only: the acceleration noise; the first step draws N(0, sigma_v^2)."""
+    resampler: Literal["systematic", "sorted_copy"] = "systematic"
+    """systematic: O(m) with one uniform draw; sorted_copy: the thesis's scheme (4.5)."""
+    # thesis 4.3 criterion 3: a leg within 400 mm of the prediction
+    gate_m: Annotated[float, msgspec.Meta(gt=0)] = 0.4
+    gate_growth: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """While coasting the gate grows by gate_growth * sigma_v * dT * sqrt(misses), the
+    spread the random walk adds to the cloud."""
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Indices of m particles drawn systematically: u_k = (U + k) / m, k = 0..m-1, U ~ U[0, 1).
+
+    Particle i is drawn floor(m w_i) or ceil(m w_i) times. ``weights`` (m,) must sum to 1.
+    """
+    m = weights.shape[0]
+    positions = (rng.random() + np.arange(m)) / m
+    cumulative = np.cumsum(weights)
+    idx = np.searchsorted(cumulative, positions, side="right")
+    return np.minimum(idx, m - 1, out=idx)  # guards round-off: cumulative[-1] may be 1 - eps
+
+
+def sorted_copy_resample(weights: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+    """The thesis's resampling (4.5, Table 4.6): sort from high to low weight, copy particle i
+    floor(w_i m) times, stop at m copies.
+
+    The floors leave up to m - 1 places empty; the pseudo-code does not say what fills them, so
+    they go to the heaviest particles in order (one more copy each). Deterministic: ``rng`` is
+    accepted for a common signature and not used.
+    """
+    m = weights.shape[0]
+    order = np.argsort(-weights, kind="stable")
+    counts = np.floor(weights[order] * m).astype(np.intp)
+    idx = np.repeat(order, counts)
+    short = m - idx.shape[0]
+    if short > 0:
+        idx = np.concatenate([idx, order[:short]])
+    return idx[:m]
+
+
+_RESAMPLERS = {"systematic": systematic_resample, "sorted_copy": sorted_copy_resample}
+
+
+class ParticleEstimator:
+    """One person's particle cloud (thesis 3.6.2). ``rng`` must be a seeded Generator."""
+
+    name = "particle"
+    settings_type = ParticleSettings
+
+    def __init__(
+        self,
+        x_m: float,
+        y_m: float,
+        settings: ParticleSettings | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        s = settings or ParticleSettings()
+        if rng is None:
+            raise ValueError("ParticleEstimator needs a seeded numpy Generator (rng=...)")
+        if not (math.isfinite(x_m) and math.isfinite(y_m)):
+            raise ValueError(f"non-finite initial position ({x_m}, {y_m})")
+        self.settings = s
+        self.rng = rng
+        m = s.particles
+        self._m = m
+        self._resample = _RESAMPLERS[s.resampler]
+        self._inv_sd2 = 1.0 / s.range_std_m**2
+        self._inv_sa2 = 1.0 / math.radians(s.bearing_std_deg) ** 2
+        # thesis 4.5, eq. 4-8/4-9: every particle at the model position, velocity 0, w = 1/m
+        self.particles = np.zeros((4, m))
+        self.particles[0] = x_m
+        self.particles[1] = y_m
+        self._spare = np.empty((4, m))
+        self._mean = np.array([x_m, y_m, 0.0, 0.0])
+        self._weights: np.ndarray | None = None  # None: uniform (after resampling)
+        self._dt_s = 0.0
+        self._moved = False
+
+    # ------------------------------------------------------------------ estimate
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(4,) the MMSE estimate (eq. 3-38) of the last update, else the cloud's mean."""
+        return self._mean
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(4, 4) spread of the current (resampled) particles."""
+        d = self.particles - self.particles.mean(axis=1, keepdims=True)
+        return (d @ d.T) / self._m
+
+    # ------------------------------------------------------------------ steps
+
+    def ego_motion(self, rotation: np.ndarray, translation: np.ndarray) -> None:
+        """p <- R p + t, v <- R v for every particle (the correct SE(2) change, core.py)."""
+        p = self.particles
+        p[0:2] = rotation @ p[0:2]
+        p[0] += translation[0]
+        p[1] += translation[1]
+        p[2:4] = rotation @ p[2:4]
+        self._mean[0:2] = rotation @ self._mean[0:2] + translation
+        self._mean[2:4] = rotation @ self._mean[2:4]
+
+    def predict(self, dt_s: float, misses: int = 0) -> None:
+        """Eq. 3-30: velocities drawn afresh from N(0, sigma_v^2), positions moved v dT."""
+        p = self.particles
+        v = p[2:4]
+        s = self.settings
+        if s.velocity_model == "random_walk" or not self._moved:
+            self.rng.standard_normal(out=v)  # in place: rows 2..3 are one contiguous block
+            v *= s.velocity_std_mps
+            self._moved = True
+        else:
+            noise = self._spare[0:2]
+            self.rng.standard_normal(out=noise)
+            noise *= s.accel_std_mps2 * dt_s
+            v += noise
+        p[0:2] += v * dt_s
+        self._dt_s = dt_s
+        self._mean = p.mean(axis=1)
+
+    def distance(self, points: np.ndarray, misses: int = 0) -> np.ndarray:
+        """Euclidean distance of each candidate (n, 2) to the predicted position."""
+        return np.hypot(points[:, 0] - self._mean[0], points[:, 1] - self._mean[1])
+
+    def gate(self, misses: int = 0) -> float:
+        s = self.settings
+        return s.gate_m + s.gate_growth * s.velocity_std_mps * self._dt_s * math.sqrt(misses)
+
+    def update(self, point: np.ndarray) -> None:
+        """Weight by range and bearing (eq. 3-36), normalise, estimate (eq. 3-38), resample."""
+        p = self.particles
+        zx, zy = float(point[0]), float(point[1])
+        d_m = math.hypot(zx, zy)
+        a_m = math.atan2(zy, zx)
+        # bearing error of each particle = atan2 of its position rotated by -A_m (wrap-free)
+        c, s = math.cos(a_m), math.sin(a_m)
+        xr = c * p[0] + s * p[1]
+        yr = c * p[1] - s * p[0]
+        da = np.arctan2(yr, xr)
+        dd = np.hypot(xr, yr)
+        dd -= d_m
+        # log w = -(d_m - d_p)^2 / sigma_d^2 - (A_m - A_p)^2 / sigma_A^2
+        dd *= dd
+        dd *= -self._inv_sd2
+        da *= da
+        dd -= da * self._inv_sa2
+        dd -= dd.max()  # the best particle gets exp(0): no underflow to all-zero weights
+        w = np.exp(dd, out=dd)
+        w /= w.sum()
+        self._mean = p @ w  # eq. 3-38
+        idx = self._resample(w, self.rng)
+        np.take(p, idx, axis=1, out=self._spare)
+        self.particles, self._spare = self._spare, p
+
+    def expired(self) -> bool:
+        return False

@@ -1,0 +1,114 @@
+"""Controller: the thesis rule, limits that always hold (hypothesis), stops."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from followbot.schemas import TrackState
+from followbot.services.controller.core import ControllerSettings, FollowController
+
+DEG = math.pi / 180
+
+
+def target(x, y, vx=0.0, vy=0.0, status="tracking"):
+    return TrackState(stamp_ns=0, status=status, x_m=x, y_m=y, vx_mps=vx, vy_mps=vy)
+
+
+@pytest.mark.parametrize(
+    ("r", "speed", "expected", "reason"),
+    [
+        (1.0, 0.5, 0.0, "stop_close"),
+        (1.3, 0.4, 0.4, "match_speed"),
+        (1.3, 2.0, 2.0, "match_speed"),  # the goal; the limits cap it (below)
+        (2.5, 0.1, 0.75, "max_speed"),
+    ],
+)
+def test_translation_rule_of_thesis_4_6(r, speed, expected, reason):
+    v, w, pan, why = FollowController().goal(target(r, 0.0, vx=speed))
+    assert (v, w, pan, why) == (pytest.approx(expected), 0.0, 0.0, reason)
+
+
+def test_turns_only_outside_the_6_degree_dead_band_and_pan_is_the_heading():
+    ctl = FollowController()
+    for deg, turns in [(5.0, False), (-5.9, False), (6.5, True), (-30.0, True)]:
+        th = deg * DEG
+        _, w, pan, _ = ctl.goal(target(2.0 * math.cos(th), 2.0 * math.sin(th)))
+        assert (w != 0.0) == turns
+        if turns:
+            assert math.copysign(1, w) == math.copysign(1, th)
+        assert pan == pytest.approx(th)
+
+
+def test_coasting_keeps_the_previous_goal_lost_stops():
+    ctl = FollowController()
+    for _ in range(40):
+        c = ctl.on_target(target(2.5, 0.5), 0.12)
+    v_tracking = c.linear_mps
+    assert v_tracking == pytest.approx(0.75)
+    c = ctl.on_target(target(0.0, 0.0, status="coasting"), 0.12)
+    assert c.linear_mps == pytest.approx(v_tracking) and c.reason == "coasting"
+    for _ in range(10):
+        c = ctl.on_target(target(0.0, 0.0, status="lost"), 0.12)
+    assert (c.linear_mps, c.angular_radps, c.reason) == (0.0, 0.0, "lost")
+
+
+def test_the_watchdog_brakes_to_rest_within_the_deceleration_limit():
+    ctl = FollowController()
+    for _ in range(40):
+        ctl.on_target(target(3.0, 1.0), 0.12)
+    assert ctl.v > 0.7
+    n = 0
+    while not ctl.at_rest:
+        c = ctl.stop(0.05)
+        n += 1
+        assert n < 100
+    assert c.reason == "watchdog" and c.linear_mps == 0.0
+    assert n <= math.ceil(0.75 / (2.0 * 0.05)) + 1  # 2 m/s^2 braking
+
+
+finite = st.floats(-20, 20, allow_nan=False)
+events = st.lists(
+    st.tuples(
+        st.sampled_from(["tracking", "coasting", "lost", "initialising", "watchdog"]),
+        finite,
+        finite,
+        finite,
+        finite,
+        st.floats(0.0, 0.5),
+    ),
+    min_size=1,
+    max_size=60,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(events)
+def test_limits_always_hold(seq):
+    s = ControllerSettings()
+    ctl = FollowController(s)
+    v0 = w0 = p0 = 0.0
+    tol = 1e-9
+    for kind, x, y, vx, vy, dt in seq:
+        if kind == "watchdog":
+            c = ctl.stop(dt)
+        else:
+            c = ctl.on_target(target(x, y, vx, vy, status=kind), dt)
+        assert 0.0 <= c.linear_mps <= s.max_speed_mps + tol  # no reverse by default
+        assert abs(c.angular_radps) <= s.max_turn_deg_s * DEG + tol
+        assert abs(c.pan_rad) <= s.pan_limit_deg * DEG + tol
+        dv = c.linear_mps - v0
+        limit = (s.accel_mps2 if abs(c.linear_mps) > abs(v0) else s.decel_mps2) * dt
+        assert abs(dv) <= limit + tol
+        assert abs(c.angular_radps - w0) <= s.turn_accel_deg_s2 * DEG * dt + tol
+        assert abs(c.pan_rad - p0) <= s.pan_rate_deg_s * DEG * dt + tol
+        v0, w0, p0 = c.linear_mps, c.angular_radps, c.pan_rad
+
+
+def test_non_finite_goal_is_refused():
+    ctl = FollowController()
+    c = ctl._limit(float("nan"), 0.0, 0.0, "x", 0.1)
+    assert (c.linear_mps, c.reason) == (0.0, "invalid")

@@ -1,0 +1,375 @@
+"""Tracker core: ego-motion transform, odometry interpolation, resampling, misses, late vision."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from followbot.schemas import (
+    Candidate,
+    Odometry,
+    PersonCandidates,
+    TargetModel,
+    Verification,
+    VerifiedCandidate,
+)
+from followbot.services.runtime.plugins import UnknownPlugin
+from followbot.services.tracker.core import (
+    OdometryBuffer,
+    Tracker,
+    TrackerSettings,
+    se2_change,
+    thesis_printed_transform,
+    transform_points,
+)
+from followbot.services.tracker.estimators import (
+    ParticleEstimator,
+    ParticleSettings,
+    estimator_factory,
+    registry,
+    sorted_copy_resample,
+    systematic_resample,
+)
+
+MS = 1_000_000
+SCAN_NS = 120 * MS
+
+
+def world_to_base(p, pose):
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = p[0] - x, p[1] - y
+    return np.array([c * dx + s * dy, -s * dx + c * dy])
+
+
+# --------------------------------------------------------------------------- ego-motion
+
+
+def test_se2_change_keeps_a_world_point_fixed_and_the_printed_equation_does_not():
+    world = (3.0, 1.0)
+    pose0, pose1 = (0.0, 0.0, 0.3), (0.4, 0.3, 0.9)  # the robot turns and moves
+    p0 = world_to_base(world, pose0)
+    expected = world_to_base(world, pose1)
+    got = transform_points(p0[None], pose0, pose1)[0]
+    assert np.allclose(got, expected, atol=1e-12)
+    printed = thesis_printed_transform(p0[None], pose0, pose1)[0]
+    assert np.linalg.norm(printed - expected) > 0.3  # eq. 3-31 as printed is off by metres
+
+
+def test_printed_equation_agrees_only_without_rotation_of_the_start_frame():
+    # pure translation from a zero heading: nothing to rotate, both are right
+    pose0, pose1 = (0.0, 0.0, 0.0), (0.5, -0.2, 0.0)
+    p0 = np.array([[2.0, 0.5]])
+    assert np.allclose(
+        thesis_printed_transform(p0, pose0, pose1), transform_points(p0, pose0, pose1)
+    )
+
+
+poses = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-math.pi, math.pi))
+
+
+@settings(max_examples=200, deadline=None)
+@given(poses, poses, poses, st.floats(-10, 10), st.floats(-10, 10))
+def test_se2_change_composes_and_inverts(a, b, c, x, y):
+    p = np.array([[x, y]])
+    direct = transform_points(p, a, c)
+    via = transform_points(transform_points(p, a, b), b, c)
+    assert np.allclose(direct, via, atol=1e-7)
+    assert np.allclose(transform_points(transform_points(p, a, b), b, a), p, atol=1e-7)
+    rot, _ = se2_change(a, b)
+    assert np.allclose(rot @ rot.T, np.eye(2))
+
+
+def odom(stamp_ns, x, y, yaw, v=0.0, w=0.0):
+    return Odometry(stamp_ns=stamp_ns, x_m=x, y_m=y, yaw_rad=yaw, v_mps=v, w_radps=w)
+
+
+def test_odometry_interpolates_at_the_scan_stamp_across_the_yaw_wrap():
+    buf = OdometryBuffer()
+    buf.add(odom(0, 0.0, 0.0, 3.1))
+    buf.add(odom(100 * MS, 1.0, 2.0, -3.1))  # crossed +-pi: 0.083 rad of turn, not 6.2
+    x, y, th = buf.pose_at(25 * MS)
+    assert (x, y) == pytest.approx((0.25, 0.5))
+    assert math.remainder(th - 3.1, 2 * math.pi) == pytest.approx((2 * math.pi - 6.2) / 4)
+
+
+def test_odometry_out_of_order_extrapolation_and_gaps():
+    buf = OdometryBuffer(max_extrapolation_ns=50 * MS)
+    buf.add(odom(100 * MS, 1.0, 0.0, 0.0, v=1.0))
+    buf.add(odom(0, 0.0, 0.0, 0.0, v=1.0))  # arrives late, goes first
+    assert buf.pose_at(50 * MS)[0] == pytest.approx(0.5)
+    assert buf.pose_at(140 * MS)[0] == pytest.approx(1.04)  # along the last twist
+    assert buf.pose_at(200 * MS) is None  # too far ahead
+    assert buf.pose_at(-1) is None  # before the first message
+    assert OdometryBuffer().pose_at(0) is None
+
+
+# --------------------------------------------------------------------------- resampling
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=300), st.integers(0, 2**32 - 1))
+def test_systematic_resampling_draws_floor_or_ceil_of_m_w(raw, seed):
+    w = np.asarray(raw) + 1e-12
+    w /= w.sum()
+    idx = systematic_resample(w, np.random.default_rng(seed))
+    m = len(w)
+    assert idx.shape == (m,) and idx.min() >= 0 and idx.max() < m
+    counts = np.bincount(idx, minlength=m)
+    assert np.all(counts >= np.floor(m * w - 1e-9)) and np.all(counts <= np.ceil(m * w + 1e-9))
+
+
+def test_resampling_is_reproducible_with_a_seeded_generator():
+    w = np.random.default_rng(3).random(150)
+    w /= w.sum()
+    a = systematic_resample(w, np.random.default_rng(7))
+    b = systematic_resample(w, np.random.default_rng(7))
+    c = systematic_resample(w, np.random.default_rng(8))
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_sorted_copy_resampling_copies_heavy_particles_floor_m_w_times():
+    w = np.array([0.05, 0.5, 0.3, 0.15])
+    idx = sorted_copy_resample(w)
+    # floors: 0, 2, 1, 0 -> 3 copies; the one place left goes to the heaviest (index 1)
+    assert sorted(idx.tolist()) == [1, 1, 1, 2]
+    assert idx[0] == 1  # sorted from high to low weight
+
+
+# --------------------------------------------------------------------------- the filter
+
+
+def test_particle_filter_initialises_at_the_model_and_moves_to_the_measurement():
+    pf = ParticleEstimator(2.0, 0.0, ParticleSettings(), np.random.default_rng(0))
+    assert np.allclose(pf.particles[:2], [[2.0], [0.0]]) and np.all(pf.particles[2:] == 0)
+    for _ in range(20):
+        pf.predict(0.12)
+        pf.update(np.array([2.3, 0.4]))
+    assert np.hypot(pf.mean[0] - 2.3, pf.mean[1] - 0.4) < 0.05
+
+
+def test_particle_weights_survive_a_measurement_far_from_every_particle():
+    pf = ParticleEstimator(1.0, 0.0, ParticleSettings(), np.random.default_rng(0))
+    pf.predict(0.12)
+    pf.update(np.array([-5.0, 30.0]))  # every likelihood underflows exp()
+    assert np.all(np.isfinite(pf.particles)) and np.all(np.isfinite(pf.mean))
+
+
+def test_particle_ego_motion_rotates_velocities_too():
+    pf = ParticleEstimator(1.0, 0.0, ParticleSettings(), np.random.default_rng(0))
+    pf.particles[2] = 1.0  # every particle walks along +x
+    rot, trans = se2_change((0.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2))  # robot turns left 90 deg
+    pf.ego_motion(rot, trans)
+    assert np.allclose(pf.particles[0:2], [[0.0], [-1.0]], atol=1e-12)
+    assert np.allclose(pf.particles[2:4], [[0.0], [-1.0]], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(set(registry.names()) | {"particle", "ukf"}))
+def test_every_estimator_follows_a_walker_at_0_6_mps(name):
+    make = estimator_factory(name)
+    est = make(2.0, -1.0, np.random.default_rng(1))
+    rng = np.random.default_rng(2)
+    errs = []
+    for k in range(1, 60):
+        truth = np.array([2.0, -1.0 + 0.6 * 0.12 * k])
+        est.predict(0.12, 0)
+        d = est.distance((truth + rng.normal(0, 0.02, 2))[None], 0)
+        assert d[0] <= est.gate(0), f"{name}: the walker left the gate at step {k}"
+        est.update(truth + rng.normal(0, 0.02, 2))
+        errs.append(np.hypot(*(est.mean[:2] - truth)))
+        assert est.covariance.shape == (4, 4) and not est.expired()
+    assert np.sqrt(np.mean(np.square(errs[10:]))) < 0.1
+
+
+def test_unknown_estimator_lists_the_valid_names():
+    with pytest.raises(UnknownPlugin, match=r"valid names: .*particle"):
+        Tracker(TrackerSettings(estimator="nope"))
+
+
+# --------------------------------------------------------------------------- the tracker
+
+
+def cands(stamp_ns, *xy):
+    return PersonCandidates(
+        stamp_ns=stamp_ns,
+        frame_id="base_laser",
+        candidates=[
+            Candidate(x_m=x, y_m=y, range_m=math.hypot(x, y), bearing_rad=math.atan2(y, x))
+            for x, y in xy
+        ],
+    )
+
+
+def model(stamp_ns, x, y):
+    return TargetModel(
+        stamp_ns=stamp_ns,
+        model_id=1,
+        verifier="test",
+        x_m=x,
+        y_m=y,
+        rect_width_px=50,
+        rect_height_px=150,
+        image_width=320,
+        image_height=240,
+    )
+
+
+def verification(stamp_ns, positions, chosen):
+    return Verification(
+        stamp_ns=stamp_ns,
+        image_stamp_ns=stamp_ns,
+        model_id=1,
+        verifier="test",
+        candidates=[
+            VerifiedCandidate(index=i, x_m=x, y_m=y, in_view=True, distance=0.5)
+            for i, (x, y) in enumerate(positions)
+        ],
+        chosen=chosen,
+    )
+
+
+def still_robot(tracker, stamp_ns):
+    tracker.add_odometry(odom(stamp_ns, 0.0, 0.0, 0.0))
+
+
+def test_status_initialising_tracking_coasting_then_lost_after_more_than_8_misses():
+    trk = Tracker(TrackerSettings())
+    still_robot(trk, 0)
+    target, _ = trk.step(cands(0, (2.0, 0.0)))
+    assert target.status == "initialising"
+    trk.set_target_model(model(0, 2.0, 0.0))
+    for k in range(1, 4):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+    assert target.status == "tracking" and target.misses == 0
+    assert "laser" in target.sources and "odometry" in target.sources
+    assert people.target_id == target.track_id and len(people.tracks) == 1
+    statuses = []
+    for k in range(4, 14):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+        statuses.append((target.status, target.misses))
+    assert statuses[:8] == [("coasting", m) for m in range(1, 9)]
+    assert statuses[8][0] == "lost" and statuses[9][0] == "lost"
+
+
+def test_missing_odometry_is_flagged_and_tracking_continues():
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    for k in range(5):
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.1 * k)))
+    assert target.status == "tracking"
+    assert "no_odometry" in target.flags and "odometry" not in target.sources
+    assert trk.steps_without_odometry == 5
+
+
+def test_people_keep_stable_ids_while_they_walk():
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    ids = []
+    for k in range(30):
+        still_robot(trk, k * SCAN_NS)
+        y = 0.05 * k
+        _, people = trk.step(cands(k * SCAN_NS, (2.0, -1.0 + y), (3.0, 1.0 - y)))
+        ids.append(sorted((round(t.y_m), t.id) for t in people.tracks))
+    final = {t.id for t in people.tracks}
+    assert len(final) == 2 and final == {1, 2}  # the two first tracks, never replaced
+
+
+def test_late_verification_applies_to_the_scan_it_names_after_the_lag():
+    """A at y=-0.8, B at y=+0.8; the target starts on A. Vision says B, late: the stamps it
+    names are held for vision_lag_scans steps, then settle the target on B's track even though
+    by then both have moved."""
+    trk = Tracker(TrackerSettings(vision_lag_scans=3, switch_votes=2))
+    trk.set_vision_alive(True)
+
+    def at(k):
+        return (2.0 + 0.05 * k, -0.8), (2.0 + 0.05 * k, 0.8)
+
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, -0.8))
+    target, people = trk.step(cands(0, *at(0)))
+    a_id = target.track_id
+    b_id = next(t.id for t in people.tracks if t.id != a_id) if len(people.tracks) > 1 else None
+    targets = []
+    for k in range(1, 9):
+        still_robot(trk, k * SCAN_NS)
+        if k in (1, 2):  # vision of scans 1 and 2 arrives at once: B (index 1) is the one
+            trk.add_verification(verification(k * SCAN_NS, at(k), chosen=1))
+        target, people = trk.step(cands(k * SCAN_NS, *at(k)))
+        targets.append(target.track_id)
+    b_id = next(t.id for t in people.tracks if abs(t.y_m - 0.8) < 0.2)
+    assert b_id != a_id
+    # scan 1's verification is applied at step 4, scan 2's at step 5: two votes -> switch at 5
+    assert targets[:4] == [a_id] * 4
+    assert targets[4:] == [b_id] * 4
+    assert trk.verifications_applied == 2 and trk.target_switches == 1
+
+
+def test_verification_naming_an_unknown_scan_is_counted_not_applied():
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    still_robot(trk, 10 * SCAN_NS)
+    trk.step(cands(10 * SCAN_NS, (2.0, 0.0)))
+    trk.add_verification(verification(3 * SCAN_NS, [(2.0, 0.0)], chosen=0))
+    still_robot(trk, 11 * SCAN_NS)
+    trk.step(cands(11 * SCAN_NS, (2.0, 0.0)))
+    assert trk.verifications_unmatched == 1 and trk.verifications_applied == 0
+
+
+def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
+    trk = Tracker(TrackerSettings())
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))  # vision is fresh
+    for k in range(1, 11):  # the target disappears: lost after 9 misses
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    assert target.status == "lost"
+    # two people appear; the one nearest to where the target was lost is NOT the target
+    near, far = (2.1, 0.0), (2.5, 1.2)
+    for k in range(11, 14):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, near, far))
+    assert target.status == "lost"  # vision is up: no laser-only guess
+    trk.add_verification(verification(13 * SCAN_NS, [near, far], chosen=1))
+    still_robot(trk, 14 * SCAN_NS)
+    target, _ = trk.step(cands(14 * SCAN_NS, near, far))
+    assert target.status == "tracking" and "vision" in target.sources
+    assert abs(target.y_m - 1.2) < 0.2
+
+
+def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    for k in range(12):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
+    assert target.status == "lost" and "no_vision" in target.flags
+    still_robot(trk, 12 * SCAN_NS)
+    target, _ = trk.step(cands(12 * SCAN_NS, (2.2, 0.1), (2.0, 1.5)))
+    assert target.status == "tracking" and abs(target.y_m - 0.1) < 0.15
+
+
+def test_same_seed_same_output():
+    def run(seed):
+        trk = Tracker(TrackerSettings(acquire="nearest", seed=seed))
+        out = []
+        for k in range(10):
+            still_robot(trk, k * SCAN_NS)
+            t, _ = trk.step(cands(k * SCAN_NS, (2.0 + 0.03 * k, 0.2)))
+            out.append((t.x_m, t.y_m, t.vx_mps))
+        return out
+
+    assert run(1) == run(1) and run(1) != run(2)
+
+
+def test_repeated_stamp_is_answered_without_changing_the_state():
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    still_robot(trk, SCAN_NS)
+    a, _ = trk.step(cands(SCAN_NS, (2.0, 0.0)))
+    b, _ = trk.step(cands(SCAN_NS, (5.0, 0.0)))
+    assert b.stamp_ns == a.stamp_ns and "out_of_order" in b.flags
+    assert (b.x_m, b.y_m) == (a.x_m, a.y_m)

@@ -1,0 +1,114 @@
+"""Tracker and controller nodes on the in-process fake bus: one answer per stamp, watchdog."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from followbot.schemas import (
+    Candidate,
+    Keys,
+    Odometry,
+    PanCommand,
+    People,
+    PersonCandidates,
+    TrackState,
+    VelocityCommand,
+    decode,
+    encode,
+)
+from followbot.services.controller.node import ControllerNodeSettings
+from followbot.services.controller.node import setup as controller_setup
+from followbot.services.runtime.bus import FakeNetwork
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.settings import load_settings
+from followbot.services.tracker.node import TrackerNodeSettings
+from followbot.services.tracker.node import setup as tracker_setup
+
+KEYS = Keys("robot")
+SCAN_NS = 120_000_000
+
+
+def of(net, topic, kind):
+    key = KEYS.topic(topic)
+    return [decode(kind, p) for k, p in net.published if k == key]
+
+
+def candidates(stamp_ns, x, y):
+    c = Candidate(x_m=x, y_m=y, range_m=math.hypot(x, y), bearing_rad=math.atan2(y, x))
+    return PersonCandidates(stamp_ns=stamp_ns, frame_id="base_laser", candidates=[c])
+
+
+@pytest.fixture
+def pipeline():
+    net = FakeNetwork()
+    tsettings = load_settings(TrackerNodeSettings, overrides=["acquire=nearest"])
+    tracker = Node("tracker", tsettings, net.bus("tracker"))
+    tracker_setup(tracker, tsettings)
+    csettings = load_settings(ControllerNodeSettings, overrides=["watchdog_period_s=0.02"])
+    controller = Node("controller", csettings, net.bus("controller"))
+    controller_setup(controller, csettings)
+    yield net, tracker, controller
+    controller.close()
+
+
+def test_one_target_people_and_command_per_candidates_message_naming_its_stamp(pipeline):
+    net, tracker, _ = pipeline
+    stamps = [k * SCAN_NS for k in range(1, 11)]
+    for k, stamp in enumerate(stamps):
+        net.put(
+            KEYS.topic("sensors/odom"), encode(Odometry(stamp_ns=stamp, x_m=0, y_m=0, yaw_rad=0))
+        )
+        net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 2.5, 0.02 * k)))
+    targets = of(net, "tracking/target", TrackState)
+    assert [t.stamp_ns for t in targets] == stamps
+    assert [p.stamp_ns for p in of(net, "tracking/people", People)] == stamps
+    cmds = of(net, "control/cmd_vel", VelocityCommand)
+    assert [c.stamp_ns for c in cmds] == stamps
+    assert [p.stamp_ns for p in of(net, "control/pan", PanCommand)] == stamps
+    assert targets[-1].status == "tracking" and targets[-1].estimator == "particle"
+    assert "no_vision" in targets[-1].flags
+    assert cmds[-1].linear_mps > 0 and cmds[-1].reason == "max_speed"
+    assert tracker.health().errors == 0
+
+
+def test_controller_brakes_to_zero_when_the_tracker_goes_away(pipeline):
+    net, tracker, controller = pipeline
+    for k in range(1, 30):
+        stamp = k * SCAN_NS
+        net.put(
+            KEYS.topic("sensors/odom"), encode(Odometry(stamp_ns=stamp, x_m=0, y_m=0, yaw_rad=0))
+        )
+        net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 3.0, 0.0)))
+    moving = of(net, "control/cmd_vel", VelocityCommand)[-1]
+    assert moving.linear_mps > 0.5
+    tracker.close()  # its liveliness token goes
+    deadline = time.monotonic() + 5.0
+    cmds = []
+    while time.monotonic() < deadline:
+        controller.spin_once()
+        cmds = [
+            c for c in of(net, "control/cmd_vel", VelocityCommand) if c.reason == "tracker_gone"
+        ]
+        if cmds and cmds[-1].linear_mps == 0.0 and cmds[-1].angular_radps == 0.0:
+            break
+        time.sleep(0.01)
+    assert cmds, "no watchdog command after the tracker left"
+    assert cmds[-1].linear_mps == 0.0 and cmds[-1].angular_radps == 0.0
+    speeds = [c.linear_mps for c in cmds]
+    assert speeds == sorted(speeds, reverse=True)  # a ramp down, never up
+    n = len(of(net, "control/cmd_vel", VelocityCommand))
+    for _ in range(5):
+        controller.spin_once()
+        time.sleep(0.02)
+    assert len(of(net, "control/cmd_vel", VelocityCommand)) == n  # at rest: it stops talking
+
+
+def test_bad_estimator_setting_is_a_settings_error():
+    net = FakeNetwork()
+    s = load_settings(TrackerNodeSettings, overrides=["estimator=nope"])
+    node = Node("tracker", s, net.bus("t"))
+    with pytest.raises(ValueError, match="valid names"):
+        tracker_setup(node, s)
