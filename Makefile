@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 # Arguments passed through to the CLI, e.g. `make demo ARGS="--duration 10"`.
 ARGS   ?=
 
-.PHONY: all test lint format bench demo soak schemas clean
+.PHONY: all test lint format bench demo soak schemas clean opencv-data
 
 all: test
 
@@ -36,6 +36,19 @@ demo: $(STAMP)
 # Long run: FOLLOWBOT_SOAK_S (default 60) seconds at FOLLOWBOT_SOAK_RATE (default 200) scans/s.
 soak: $(STAMP)
 	$(BIN)/python -m pytest -q -s -m soak --run-soak tests/test_soak.py $(ARGS)
+
+# Real pedestrian footage for the vision tests: Debian's opencv-doc (examples/data/vtest.avi),
+# unpacked once into a cache outside the clone. Needs apt-get (Debian/Ubuntu).
+OPENCV_CACHE ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/followbot
+opencv-data:
+	@if [ -f "$(OPENCV_CACHE)/opencv-doc/usr/share/doc/opencv-doc/examples/data/vtest.avi" ]; then \
+	  echo "opencv-doc data already in $(OPENCV_CACHE)"; \
+	else \
+	  mkdir -p "$(OPENCV_CACHE)/deb" && cd "$(OPENCV_CACHE)/deb" && \
+	  (apt-get download opencv-doc || (apt-get update -qq && apt-get download opencv-doc)) && \
+	  dpkg-deb -x opencv-doc_*.deb "$(OPENCV_CACHE)/opencv-doc" && rm -f opencv-doc_*.deb && \
+	  echo "opencv-doc data in $(OPENCV_CACHE)/opencv-doc"; \
+	fi
 
 # Regenerate the JSON Schema contract and docs/messages.md after a deliberate change.
 schemas: $(STAMP)

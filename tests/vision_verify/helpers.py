@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
+_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "followbot"
 _DATA_DIRS = [
     os.environ.get("FOLLOWBOT_OPENCV_DATA", ""),
+    str(_CACHE / "opencv-doc/usr/share/doc/opencv-doc/examples/data"),  # `make opencv-data`
     "/usr/share/doc/opencv-doc/examples/data",
 ]
 HOW = (
-    "not found; get it with `apt-get download opencv-doc && dpkg-deb -x opencv-doc_*.deb DIR` "
-    "and set FOLLOWBOT_OPENCV_DATA=DIR/usr/share/doc/opencv-doc/examples/data"
+    "not found; `make opencv-data` fetches Debian's opencv-doc (95 MB) into ~/.cache/followbot, "
+    "or set FOLLOWBOT_OPENCV_DATA=DIR/usr/share/doc/opencv-doc/examples/data"
 )
 
 
