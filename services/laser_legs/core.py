@@ -119,6 +119,8 @@ class Beams(msgspec.Struct, frozen=True):
     sinp: np.ndarray
     increment_rad: float
     """|angular increment| between beams (rad)."""
+    rawpp: np.ndarray | None = None
+    """The measured ranges before clipping, padded like ``rpp`` (None: not clipped)."""
 
     @property
     def r(self) -> np.ndarray:
@@ -128,6 +130,11 @@ class Beams(msgspec.Struct, frozen=True):
     @property
     def rp(self) -> np.ndarray:
         return self.rpp[1:]
+
+    @property
+    def raw_rp(self) -> np.ndarray:
+        """Measured (unclipped) ranges, one pad after the last beam: for leg positions."""
+        return (self.rpp if self.rawpp is None else self.rawpp)[1:]
 
     @property
     def angles(self) -> np.ndarray:
@@ -163,8 +170,10 @@ def prepare(scan: LaserScan, clip_range_m: float | None = None) -> Beams:
     rpp = np.full(n + 2, NO_RETURN)
     r = rpp[1:-1]
     np.copyto(r, raw, where=valid)  # float32 -> float64 on the way
+    rawpp = None
     if clip_range_m is not None:
-        np.minimum(r, clip_range_m, out=r)
+        rawpp = rpp
+        rpp = np.minimum(rpp, clip_range_m)
     angles, cos, sin = beam_geometry(
         float(scan.angle_min_rad), float(scan.angle_increment_rad), int(n)
     )
@@ -175,6 +184,7 @@ def prepare(scan: LaserScan, clip_range_m: float | None = None) -> Beams:
         cosp=cos,
         sinp=sin,
         increment_rad=abs(float(scan.angle_increment_rad)) or math.radians(0.5),
+        rawpp=rawpp,
     )
 
 
@@ -262,14 +272,15 @@ def end_width(b: Beams, c: Clusters) -> np.ndarray:
 
 
 def centroids(b: Beams, c: Clusters) -> tuple[np.ndarray, np.ndarray]:
-    """Mean of each cluster's points (cartesian)."""
+    """Mean of each cluster's points (cartesian), from the measured (unclipped) ranges."""
     if len(c) == 0:
         z = np.zeros(0)
         return z, z
     bounds = c.bounds()
     cnt = c.counts
-    xp = b.rp * b.cosp
-    yp = b.rp * b.sinp
+    rp = b.raw_rp
+    xp = rp * b.cosp
+    yp = rp * b.sinp
     return np.add.reduceat(xp, bounds)[0::2] / cnt, np.add.reduceat(yp, bounds)[0::2] / cnt
 
 

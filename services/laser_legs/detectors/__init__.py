@@ -18,19 +18,25 @@ from followbot.services.runtime.plugins import Registry, UnknownPlugin
 
 from ..core import LegDetector
 from .arc import ArcSettings, InscribedAngleArcDetector
+from .bellotto import BellottoSettings, EdgePatternDetector
 from .derivative import DerivativeSegmentDetector, DerivativeSettings
 from .iav import IAVSettings, InscribedAngleVarianceDetector
+from .learned import LearnedSettings, RandomTreesLegDetector
 from .thesis import ClusterLegDetector, ThesisSettings
 
 __all__ = [
     "DETECTORS",
     "ArcSettings",
+    "BellottoSettings",
     "ClusterLegDetector",
     "DerivativeSegmentDetector",
     "DerivativeSettings",
+    "EdgePatternDetector",
     "IAVSettings",
     "InscribedAngleArcDetector",
     "InscribedAngleVarianceDetector",
+    "LearnedSettings",
+    "RandomTreesLegDetector",
     "ThesisSettings",
     "make_detector",
 ]
@@ -41,6 +47,8 @@ DETECTORS: dict[str, tuple[type, type]] = {
     "arc": (InscribedAngleArcDetector, ArcSettings),
     "iav": (InscribedAngleVarianceDetector, IAVSettings),
     "derivative": (DerivativeSegmentDetector, DerivativeSettings),
+    "bellotto": (EdgePatternDetector, BellottoSettings),
+    "learned": (RandomTreesLegDetector, LearnedSettings),
 }
 
 

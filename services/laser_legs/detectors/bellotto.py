@@ -1,0 +1,244 @@
+"""Leg patterns from vertical edges (seed 002, Bellotto & Hu 2009, II-A and Table I).
+
+1. Preprocessing: a local minimisation operator (removes spikes from reflections on sloped
+   surfaces), then a local maximisation operator (discards thin objects such as table legs).
+   On the range signal a minimum over ``w_min`` beams widens near objects by ``(w_min-1)/2``
+   beams a side and removes far spikes narrower than ``w_min``; the maximum over
+   ``w_max > w_min`` beams then removes near objects (dips) of at most ``w_max - w_min`` beams
+   and leaves the others ``(w_max - w_min)/2`` beams narrower a side. Windows are given at
+   0.5 deg and scaled to the scanner's resolution. Beams without return count as far.
+2. Vertical edges: a doublet ``(r_i, r_i+1)`` with ``|r_i+1 - r_i| > edge_jump_m``;
+   ``L`` when the range drops (``r_i > r_i+1``: an object begins, in beam order), ``R`` when it
+   rises. Adjacent edges of the same type (consecutive doublets) are joined into one.
+3. Patterns, extracted in this order, each edge used once (Table I):
+   ``LA`` (legs apart) ``{L, R, L, R}``: two legs each of width ``a``, centres less than the
+   step length ``b`` apart; ``FS`` (forward straddle) ``{L, L, R}`` or ``{L, R, R}``: one
+   object of width ``a..c`` in two parts whose depth step is below ``b``; ``SL`` (single leg
+   or legs together) ``{L, R}`` of width ``a_min..c_max``.
+   Constraints (IV-A): leg width ``10 < a < 20 cm``, step ``b < 40 cm``, two legs together
+   ``10 < c < 40 cm``.
+
+The person is at the midpoint of its pattern (mean of its legs). Legs carry the raw beams of
+their span (a span that holds a beam without return is dropped); their position is the
+centroid of those raw points. The preprocessing narrows objects, so widths are measured as the
+chord between a span's end points plus the beams lost a side and one beam spacing (the end
+beams lie inside the outline). ``edge_jump_m`` and the windows are not given in seed 002; the
+defaults are choices (documented in docs/laser_legs.md).
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+import numpy as np
+
+from followbot.schemas import Candidate, LaserScan, Leg, PersonCandidates
+
+from ..core import Prediction, candidates_message, person, valid_mask
+
+__all__ = ["BellottoSettings", "EdgePatternDetector"]
+
+_HALF_DEG = math.radians(0.5)
+
+
+class BellottoSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Parameters of :class:`EdgePatternDetector`; a, b, c are seed 002's (IV-A)."""
+
+    min_window_beams: int = 3  # seed 002 II-A "local minimization": window not given
+    max_window_beams: int = 5  # seed 002 II-A "local maximization": window not given
+    edge_jump_m: float = 0.10  # seed 002 II-A edge threshold: value not given
+    far_m: float = 100.0  # range given to beams without return (far background)
+    leg_min_m: float = 0.10  # seed 002 IV-A: 10 < a
+    leg_max_m: float = 0.20  # seed 002 IV-A: a < 20 cm
+    step_max_m: float = 0.40  # seed 002 IV-A: b < 40 cm
+    together_min_m: float = 0.10  # seed 002 IV-A: 10 < c
+    together_max_m: float = 0.40  # seed 002 IV-A: c < 40 cm
+    gate_m: float = 0.40  # thesis 4.3.2 criterion 3, when a prediction is given
+    la_confidence: float = 1.0  # seed 002: LA patterns are the most reliable
+    fs_confidence: float = 0.8
+    sl_confidence: float = 0.4  # seed 002: SL patterns are the easiest to misinterpret
+
+    def __post_init__(self) -> None:
+        if self.min_window_beams < 1 or self.min_window_beams % 2 == 0:
+            raise ValueError("min_window_beams must be odd and >= 1")
+        if self.max_window_beams < self.min_window_beams or self.max_window_beams % 2 == 0:
+            raise ValueError("max_window_beams must be odd and >= min_window_beams")
+        if not 0 < self.leg_min_m < self.leg_max_m:
+            raise ValueError("need 0 < leg_min_m < leg_max_m")
+        if not 0 < self.together_min_m < self.together_max_m:
+            raise ValueError("need 0 < together_min_m < together_max_m")
+        for name in ("edge_jump_m", "far_m", "step_max_m", "gate_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+
+
+def _window(beams_at_half_deg: int, increment_rad: float) -> int:
+    """An odd window covering the same angle as ``beams_at_half_deg`` beams of 0.5 deg."""
+    w = round(beams_at_half_deg * _HALF_DEG / increment_rad)
+    return max(1, w | 1)
+
+
+def _running(a: np.ndarray, w: int, op) -> np.ndarray:
+    """Running min/max over ``w`` (odd) beams, edges padded with the end values."""
+    if w <= 1 or a.shape[0] < 2:
+        return a
+    h = w // 2
+    p = np.concatenate([np.full(h, a[0]), a, np.full(h, a[-1])])
+    out = p[: a.shape[0]].copy()
+    for k in range(1, w):
+        op(out, p[k : k + a.shape[0]], out=out)
+    return out
+
+
+class EdgePatternDetector:
+    """LA / FS / SL leg patterns from vertical edges (seed 002)."""
+
+    name = "bellotto"
+    settings_type = BellottoSettings
+
+    def __init__(self, settings: BellottoSettings | None = None) -> None:
+        self.settings = settings or BellottoSettings()
+
+    def preprocess(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """(raw ranges as float64, validity, preprocessed ranges, |increment|)."""
+        s = self.settings
+        raw = scan.ranges_m().astype(np.float64)
+        valid = valid_mask(raw, scan.range_min_m, scan.range_max_m)
+        inc = abs(float(scan.angle_increment_rad)) or _HALF_DEG
+        r = np.where(valid, raw, s.far_m)
+        wmin = _window(s.min_window_beams, inc)
+        wmax = max(_window(s.max_window_beams, inc), wmin)
+        pre = _running(_running(r, wmin, np.minimum), wmax, np.maximum)
+        return raw, valid, pre, inc
+
+    def edges(self, pre: np.ndarray) -> list[tuple[str, int, int]]:
+        """Joined vertical edges in beam order: (type, first doublet, last doublet)."""
+        d = pre[1:] - pre[:-1]
+        idx = np.flatnonzero(np.abs(d) > self.settings.edge_jump_m)
+        kinds = np.where(d[idx] < 0, "L", "R").tolist()
+        out: list[tuple[str, int, int]] = []
+        for kind, i in zip(kinds, idx.tolist(), strict=True):
+            if out and out[-1][0] == kind and out[-1][2] == i - 1:
+                out[-1] = (kind, out[-1][1], i)  # adjacent and aligned: one longer edge
+            else:
+                out.append((kind, i, i))
+        return out
+
+    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+        s = self.settings
+        n = scan.ranges.shape[0]
+        if n < 3:
+            return candidates_message(scan, self.name, [])
+        raw, valid, pre, inc = self.preprocess(scan)
+        edges = self.edges(pre)
+        if len(edges) < 2:
+            return candidates_message(scan, self.name, [])
+        angles = scan.angles_rad()
+        lost = (max(_window(s.max_window_beams, inc), 1) - _window(s.min_window_beams, inc)) // 2
+
+        def span_of(first: int, last: int) -> tuple[int, int] | None:
+            if not 0 <= first <= last < n or not valid[first : last + 1].all():
+                return None
+            return first, last
+
+        def leg(span: tuple[int, int]) -> tuple[float, float, float]:
+            """(x, y, width) of the raw points of ``span``."""
+            a, b = span
+            rr, aa = raw[a : b + 1], angles[a : b + 1]
+            x = float(np.mean(rr * np.cos(aa)))
+            y = float(np.mean(rr * np.sin(aa)))
+            xa, ya = raw[a] * math.cos(angles[a]), raw[a] * math.sin(angles[a])
+            xb, yb = raw[b] * math.cos(angles[b]), raw[b] * math.sin(angles[b])
+            r_mid = 0.5 * (raw[a] + raw[b])
+            width = math.hypot(xb - xa, yb - ya) + (1 + 2 * lost) * r_mid * inc
+            return x, y, float(width)
+
+        # an object between an L edge and the next R edge: beams (L.last + 1) .. R.first
+        def obj(e1, e2):
+            return span_of(e1[2] + 1, e2[1])
+
+        used = [False] * len(edges)
+        found: list[tuple[str, list[tuple[tuple[int, int], tuple[float, float, float]]]]] = []
+        kinds = [e[0] for e in edges]
+        m = len(edges)
+
+        def is_leg(span) -> tuple[float, float, float] | None:
+            if span is None:
+                return None
+            g = leg(span)
+            return g if s.leg_min_m < g[2] < s.leg_max_m else None
+
+        # LA: {L, R, L, R}, both legs of width a, centres closer than b
+        for i in range(m - 3):
+            if used[i] or kinds[i] != "L" or used[i + 1] or kinds[i + 1] != "R":
+                continue
+            sp1 = obj(edges[i], edges[i + 1])
+            g1 = is_leg(sp1)
+            if g1 is None:
+                continue
+            for j in range(i + 2, m - 1):
+                if used[j] or kinds[j] != "L" or used[j + 1] or kinds[j + 1] != "R":
+                    continue
+                sp2 = obj(edges[j], edges[j + 1])
+                g2 = is_leg(sp2)
+                if g2 is not None and math.hypot(g2[0] - g1[0], g2[1] - g1[1]) < s.step_max_m:
+                    found.append(("LA", [(sp1, g1), (sp2, g2)]))
+                    used[i] = used[i + 1] = used[j] = used[j + 1] = True
+                    break
+        # FS: {L, L, R} or {L, R, R}: one object in two parts, depth step below b
+        free = [k for k in range(m) if not used[k]]
+        for a_, b_, c_ in zip(free, free[1:], free[2:], strict=False):
+            if used[a_] or used[b_] or used[c_] or kinds[a_] != "L":
+                continue
+            pat = kinds[a_] + kinds[b_] + kinds[c_]
+            if pat == "LLR":
+                p1 = span_of(edges[a_][2] + 1, edges[b_][1])  # the farther leg's visible part
+                p2 = span_of(edges[b_][2] + 1, edges[c_][1])  # the nearer leg
+            elif pat == "LRR":
+                p1 = span_of(edges[a_][2] + 1, edges[b_][1])  # the nearer leg
+                p2 = span_of(edges[b_][2] + 1, edges[c_][1])  # the farther leg's visible part
+            else:
+                continue
+            whole = span_of(edges[a_][2] + 1, edges[c_][1])
+            if p1 is None or p2 is None or whole is None:
+                continue
+            step = abs(pre[edges[b_][2] + 1] - pre[edges[b_][1]])
+            gw = leg(whole)
+            if step < s.step_max_m and s.leg_min_m < gw[2] < s.together_max_m:
+                found.append(("FS", [(p1, leg(p1)), (p2, leg(p2))]))
+                used[a_] = used[b_] = used[c_] = True
+        # SL: {L, R} of a single leg or two legs together
+        for i in range(m - 1):
+            if used[i] or used[i + 1] or kinds[i] != "L" or kinds[i + 1] != "R":
+                continue
+            sp = obj(edges[i], edges[i + 1])
+            if sp is None:
+                continue
+            g = leg(sp)
+            if min(s.leg_min_m, s.together_min_m) < g[2] < s.together_max_m:
+                found.append(("SL", [(sp, g)]))
+                used[i] = used[i + 1] = True
+
+        conf = {"LA": s.la_confidence, "FS": s.fs_confidence, "SL": s.sl_confidence}
+        out: list[Candidate] = []
+        for pattern, parts in found:
+            legs = [
+                Leg(x_m=g[0], y_m=g[1], first_beam=sp[0], last_beam=sp[1], width_m=g[2])
+                for sp, g in parts
+            ]
+            c = person(legs, pattern, conf[pattern])
+            if pattern == "FS":  # one object: its width is the whole pattern's
+                c.width_m = leg((parts[0][0][0], parts[1][0][1]))[2]
+            if prediction is not None and not _near(c, prediction, s.gate_m):
+                continue
+            out.append(c)
+        out.sort(key=lambda c: c.legs[0].first_beam)
+        return candidates_message(scan, self.name, out)
+
+
+def _near(c: Candidate, prediction: Prediction, radius_m: float) -> bool:
+    px, py = float(prediction[0]), float(prediction[1])
+    if not (math.isfinite(px) and math.isfinite(py)):
+        return True
+    return math.hypot(c.x_m - px, c.y_m - py) < radius_m

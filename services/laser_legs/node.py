@@ -1,0 +1,109 @@
+"""laser_legs: person candidates (legs) from every laser scan (issue 4).
+
+Subscribes ``sensors/scan`` (every scan, in order, handled inline on Zenoh's delivery thread:
+detection takes ~0.1 ms), ``tracking/target`` and ``sensors/odom`` (for the thesis's criterion
+3: the target's predicted position gates the legs, see ``prediction``), and publishes
+``perception/candidates`` exactly once per scan, stamped with the scan's stamp, also when no
+candidate is found and also when the detector fails (then empty; the error is counted in
+Health) — the lock-step rule 2 of docs/runtime.md.
+
+    followbot run laser_legs --set detector=bellotto
+    followbot run laser_legs --set detector=thesis --set 'detector_settings={clip_range_m: null}'
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import msgspec
+
+from followbot.schemas import LaserScan
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.service import service_main
+from followbot.services.runtime.settings import NodeSettings, SettingsError
+
+from .core import LegDetector, empty_candidates
+from .detectors import REGISTRY, make_detector
+from .prediction import TargetPredictor
+
+__all__ = ["LaserLegsSettings", "build_detector", "main", "setup"]
+
+
+class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
+    detector: str = "thesis"
+    """Leg detector by name (entry points of followbot.detectors): thesis, arc, bellotto, ..."""
+    detector_settings: dict[str, Any] = {}
+    """Overrides of the detector's own settings, validated by its settings Struct."""
+    use_target_prediction: bool = True
+    """Criterion 3: gate legs on the tracked target's predicted position (thesis 4.3.2)."""
+    prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
+    """A target older than this (scan stamp minus target stamp) is not used for gating."""
+    odometry_max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.2
+    laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
+
+    def __post_init__(self) -> None:
+        # checked while the settings load, so a bad detector or key fails before any network
+        # is opened (exit code 2, the message naming the key)
+        build_detector(self, check_only=True)
+
+
+def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> LegDetector | None:
+    """The configured detector; a bad name or setting is a SettingsError (a ValueError) naming
+    it. ``check_only`` validates the detector's settings without building the detector."""
+    try:
+        cls = REGISTRY.load(settings.detector)
+    except LookupError as exc:
+        raise SettingsError(f"detector: {exc}") from None
+    try:
+        if check_only:
+            msgspec.convert(dict(settings.detector_settings), cls.settings_type)
+            return None
+        return make_detector(settings.detector, settings.detector_settings)
+    except (ValueError, TypeError) as exc:
+        fields = ", ".join(getattr(cls.settings_type, "__struct_fields__", ()))
+        raise SettingsError(
+            f"detector_settings for {settings.detector!r}: {exc} (valid keys: {fields})"
+        ) from None
+
+
+def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
+    detector = build_detector(settings)
+    assert detector is not None
+    out = node.publisher("perception/candidates")
+    predictor = TargetPredictor(
+        max_age_s=settings.prediction_max_age_s,
+        laser_pose=settings.laser_pose_in_base,
+        max_extrapolation_s=settings.odometry_max_extrapolation_s,
+    )
+
+    def on_scan(scan: LaserScan) -> None:
+        prediction = predictor.predict(scan) if settings.use_target_prediction else None
+        try:
+            result = detector.detect(scan, prediction)
+        except Exception:
+            # rule 2: one output per scan even when the detector fails; the error is counted
+            out.put(empty_candidates(scan, detector.name))
+            raise
+        out.put(result)
+
+    node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
+    if settings.use_target_prediction:
+        node.subscribe("tracking/target", predictor.add_target, policy="all")
+        node.subscribe("sensors/odom", predictor.add_odometry, policy="all")
+
+    def notes() -> None:
+        node.notes = [
+            f"detector={detector.name}",
+            f"gated_scans={predictor.used}",
+            f"prediction_skipped={predictor.skipped}",
+        ]
+
+    notes()
+    node.every(settings.health_period_s, notes, name="notes")
+    node.log.info("detector %s, criterion 3 %s", detector.name, settings.use_target_prediction)
+    return predictor
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main("laser_legs", LaserLegsSettings, setup, argv, __doc__)

@@ -1,0 +1,157 @@
+"""Where the tracked target should be in a new scan: the prediction of criterion 3 (no Zenoh).
+
+The thesis gates legs on the tracker's prediction (criterion 3, 4.3.2 eq. 4-7). In the
+distributed pipeline the tracker's latest ``tracking/target`` names an *earlier* scan: it is
+published after the candidates of scan k-1, so when scan k arrives the newest target is as of
+stamp k-1 (or older). :class:`TargetPredictor` turns it into a position in the laser frame of
+scan k:
+
+1. use it only while ``status`` is ``tracking`` or ``coasting``, and only when it is recent:
+   ``0 <= t_scan - t_target <= max_age_s`` (a target stamped after the scan, or stale, is
+   ignored: no gating is safer than a wrong gate, which would delete the target's legs);
+2. constant velocity: ``p = (x, y) + (vx, vy) * dt`` in the base frame of the target's stamp
+   (the tracker's velocity is the ground velocity expressed in that frame);
+3. ego-motion, when odometry is known at both stamps (poses T0 at t_target, T1 at t_scan):
+   ``p1 = R(th0 - th1) p + R(-th1) (t0 - t1)`` (DESIGN.md "Particle filter", the same transform
+   as the tracker's). Odometry poses are interpolated between messages and extrapolated with
+   the last twist for at most ``max_extrapolation_s`` (in lock-step the odometry of a tick may
+   arrive after its scan). When odometry has been seen but does not cover both stamps, no
+   prediction is made; when none has ever been seen (a robot or recording without odometry),
+   the robot is taken as still;
+4. base -> laser frame: ``q = R(-yaw_l) (p1 - t_l)`` with the laser's pose in the base frame,
+   unless the target already names the scan's frame.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+
+from followbot.schemas import LaserScan, Odometry, TrackState
+
+from .core import Prediction
+
+__all__ = ["OdometryBuffer", "TargetPredictor"]
+
+_NS = 1e-9
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class OdometryBuffer:
+    """Recent odometry poses; the pose at any stamp they cover (interpolated)."""
+
+    def __init__(self, capacity: int = 512, max_extrapolation_s: float = 0.2) -> None:
+        self._stamps: deque[int] = deque(maxlen=capacity)
+        self._poses: deque[tuple[float, float, float, float, float]] = deque(maxlen=capacity)
+        self.max_extrapolation_s = max_extrapolation_s
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, odom: Odometry) -> None:
+        if self._stamps and odom.stamp_ns <= self._stamps[-1]:
+            if odom.stamp_ns == self._stamps[-1]:
+                return
+            # time went backwards (a replay restarted): forget the old history
+            self._stamps.clear()
+            self._poses.clear()
+        self._stamps.append(odom.stamp_ns)
+        self._poses.append((odom.x_m, odom.y_m, odom.yaw_rad, odom.v_mps, odom.w_radps))
+
+    def pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
+        """(x, y, yaw) at ``stamp_ns``, or None when the buffer does not cover it."""
+        stamps = self._stamps
+        if not stamps or stamp_ns < stamps[0]:
+            return None
+        if stamp_ns >= stamps[-1]:
+            dt = (stamp_ns - stamps[-1]) * _NS
+            if dt > self.max_extrapolation_s:
+                return None
+            x, y, yaw, v, w = self._poses[-1]
+            # unicycle with the last twist (exact arc for w != 0)
+            if abs(w) < 1e-9:
+                return x + v * dt * math.cos(yaw), y + v * dt * math.sin(yaw), yaw
+            yaw1 = yaw + w * dt
+            rad = v / w
+            return (
+                x + rad * (math.sin(yaw1) - math.sin(yaw)),
+                y - rad * (math.cos(yaw1) - math.cos(yaw)),
+                yaw1,
+            )
+        j = bisect.bisect_right(stamps, stamp_ns)  # stamps[j-1] <= stamp < stamps[j]
+        t0, t1 = stamps[j - 1], stamps[j]
+        x0, y0, a0, _, _ = self._poses[j - 1]
+        x1, y1, a1, _, _ = self._poses[j]
+        f = (stamp_ns - t0) / (t1 - t0)
+        return x0 + f * (x1 - x0), y0 + f * (y1 - y0), a0 + f * _wrap(a1 - a0)
+
+
+class TargetPredictor:
+    """Keeps the newest target (and odometry); predicts its position in a scan's laser frame.
+
+    ``laser_pose`` is the laser's (x, y, yaw) in the base frame.
+    """
+
+    USABLE = ("tracking", "coasting")
+
+    def __init__(
+        self,
+        max_age_s: float = 0.5,
+        laser_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        max_extrapolation_s: float = 0.2,
+    ) -> None:
+        self.max_age_ns = int(max_age_s * 1e9)
+        self.laser_pose = laser_pose
+        self.odometry = OdometryBuffer(max_extrapolation_s=max_extrapolation_s)
+        self.target: TrackState | None = None
+        self.used = 0
+        """Scans gated on a prediction."""
+        self.skipped = 0
+        """Scans with a usable target that could not be predicted (stale, no odometry...)."""
+
+    def add_target(self, target: TrackState) -> None:
+        # one publisher's messages arrive in order: the newest arrival is the newest state
+        # (also after a restart of the tracker's clock)
+        self.target = target
+
+    def add_odometry(self, odom: Odometry) -> None:
+        self.odometry.add(odom)
+
+    def predict(self, scan: LaserScan) -> Prediction:
+        """The target's predicted (x, y) in ``scan``'s frame, or None (then no gating)."""
+        t = self.target
+        if t is None or t.status not in self.USABLE:
+            return None
+        dt_ns = scan.stamp_ns - t.stamp_ns
+        if not 0 <= dt_ns <= self.max_age_ns:
+            self.skipped += 1
+            return None
+        dt = dt_ns * _NS
+        # constant velocity in the base frame of the target's stamp
+        px, py = t.x_m + t.vx_mps * dt, t.y_m + t.vy_mps * dt
+        if len(self.odometry):
+            p0 = self.odometry.pose_at(t.stamp_ns)
+            p1 = self.odometry.pose_at(scan.stamp_ns)
+            if p0 is None or p1 is None:
+                self.skipped += 1
+                return None
+            # p1 = R(th0 - th1) p + R(-th1) (t0 - t1)
+            d = p0[2] - p1[2]
+            c, s = math.cos(d), math.sin(d)
+            c1, s1 = math.cos(p1[2]), math.sin(p1[2])
+            tx, ty = p0[0] - p1[0], p0[1] - p1[1]
+            px, py = c * px - s * py + c1 * tx + s1 * ty, s * px + c * py - s1 * tx + c1 * ty
+        if t.frame_id != scan.frame_id or not t.frame_id:
+            lx, ly, lyaw = self.laser_pose
+            c, s = math.cos(lyaw), math.sin(lyaw)
+            dx, dy = px - lx, py - ly
+            px, py = c * dx + s * dy, -s * dx + c * dy
+        if not (math.isfinite(px) and math.isfinite(py)):
+            self.skipped += 1
+            return None
+        self.used += 1
+        return px, py
