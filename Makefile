@@ -27,8 +27,13 @@ format: $(STAMP)
 	$(BIN)/ruff check --fix .
 	$(BIN)/ruff format .
 
+# Runtime, wire and whole-pipeline figures, then each stage's own benchmark.
 bench: $(STAMP)
 	$(BIN)/followbot bench $(ARGS)
+	$(BIN)/python -m followbot.services.laser_legs.bench
+	$(BIN)/python -m followbot.services.tracker.bench
+	$(BIN)/python -m followbot.services.vision_verify.bench
+	$(BIN)/python -m followbot.services.sim.bench
 
 demo: $(STAMP)
 	$(BIN)/followbot demo $(ARGS)

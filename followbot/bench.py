@@ -278,7 +278,7 @@ def _progress(steps):
 # ----------------------------------------------------------------------------- report
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool = False, pipeline: bool = True) -> dict:
     print("codec ...", file=sys.stderr, flush=True)
     figures: dict = {"codec": codec_figures()}
     print("one hop between two processes ...", file=sys.stderr, flush=True)
@@ -290,6 +290,17 @@ def run(quick: bool = False) -> dict:
     }
     figures["ratios"] = ratios
     figures["hop_floor_p50_ms"] = hops["scan_floor"]["p50_ms"]
+    if pipeline:
+        from followbot import bench_pipeline
+
+        print("pipeline ...", file=sys.stderr, flush=True)
+        p = bench_pipeline.run(
+            Path("out/bench"), quick=quick, hop_floor_p50_ms=figures["hop_floor_p50_ms"]
+        )
+        figures["pipeline"] = p
+        for key in ("e2e_p50_ms", "e2e_p99_ms", "max_sustained_scans_per_s"):
+            figures[key] = p[key]
+        figures["stages"] = p["stages"]
     return figures
 
 
@@ -326,6 +337,10 @@ def format_report(f: dict) -> str:
         f"ratio node/floor p50: scan {r['scan_p50_ratio']:.2f}x, image {r['image_p50_ratio']:.2f}x"
         "   (target <= 1.5x)",
     ]
+    if "pipeline" in f:
+        from followbot.bench_pipeline import format_report as pipeline_report
+
+        lines.append(pipeline_report(f["pipeline"]))
     return "\n".join(lines)
 
 
@@ -340,8 +355,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
+    p.add_argument(
+        "--no-pipeline", action="store_true", help="skip the laser_legs/tracker/controller part"
+    )
     args = p.parse_args(argv)
-    figures = run(quick=args.quick)
+    figures = run(quick=args.quick, pipeline=not args.no_pipeline)
     print(format_report(figures))
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2) + "\n")

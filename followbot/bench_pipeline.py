@@ -1,0 +1,298 @@
+"""The default pipeline under load: laser_legs → tracker → controller as real processes.
+
+Measured in one run (``followbot bench`` calls :func:`run`):
+
+* per stage, in one process: the thesis detector, the particle-filter tracker and the
+  controller on the same scans, p50/p99, for 1, 5 and 10 people in view;
+* end to end over Zenoh: scan published → the cmd_vel that names its stamp received, p50/p99,
+  for 1, 5 and 10 people (three separate processes, four hops);
+* the highest scan rate the processes sustain with no scan lost (every scan answered);
+* the ratio of end to end to (sum of in-process stage times + 4 hops at the bare floor).
+
+Vision is not on this path: the tracker never waits for it (DESIGN.md, timing model).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from followbot.schemas import LaserScan, Odometry
+
+N_BEAMS = 720
+FOV_RAD = math.radians(270.0)
+LEG_RADIUS_M = 0.06
+# A 12 m x 12 m room round the robot.
+_ROOM = np.array([[-6, -6, 6, -6], [6, -6, 6, 6], [6, 6, -6, 6], [-6, 6, -6, -6]], dtype=np.float64)
+
+
+def people_circles(k: int, t_s: float) -> np.ndarray:
+    """Leg circles (2k x 3) of ``k`` people spread over the field of view, walking slowly."""
+    rows = []
+    for i in range(k):
+        bearing = math.radians(-100 + 200 * (i + 0.5) / k)
+        r = 1.3 + 0.22 * i
+        cx, cy = r * math.cos(bearing), r * math.sin(bearing)
+        # sideways sway of 0.3 m, legs 0.2 m apart, swinging 0.15 m
+        sway = 0.3 * math.sin(0.5 * t_s + i)
+        tx, ty = -math.sin(bearing), math.cos(bearing)
+        cx, cy = cx + sway * tx, cy + sway * ty
+        swing = 0.15 * math.sin(4 * math.pi * t_s + i)
+        for side in (-1, 1):
+            rows.append(
+                [cx + side * 0.1 * math.cos(bearing) + side * swing * tx,
+                 cy + side * 0.1 * math.sin(bearing) + side * swing * ty,
+                 LEG_RADIUS_M]
+            )  # fmt: skip
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def scan_bank(k: int, n: int, rate_hz: float = 40.0, seed: int = 0) -> list[LaserScan]:
+    """``n`` consecutive scans of ``k`` people (15 mm noise); stamps are set by the sender."""
+    from followbot.services.sim.laser import cast_rays
+
+    rng = np.random.default_rng(seed)
+    a0, inc = -FOV_RAD / 2, FOV_RAD / (N_BEAMS - 1)
+    out = []
+    for j in range(n):
+        ranges, _ = cast_rays(
+            (0.0, 0.0), a0, inc, N_BEAMS, _ROOM, people_circles(k, j / rate_hz), 30.0
+        )
+        ranges = ranges + rng.normal(0, 0.015, ranges.shape)
+        out.append(
+            LaserScan.from_ranges(
+                ranges.astype(np.float32), stamp_ns=0, frame_id="base_laser",
+                angle_min_rad=a0, angle_increment_rad=inc, range_min_m=0.02, range_max_m=30.0,
+            )
+        )  # fmt: skip
+    return out
+
+
+def _pct(values) -> tuple[float, float]:
+    a = np.asarray(values, dtype=np.float64)
+    return float(np.percentile(a, 50)), float(np.percentile(a, 99))
+
+
+def in_process(k: int, n: int = 400) -> dict[str, dict[str, float]]:
+    """Each stage's time per scan, all in this process, p50/p99 in ms."""
+    from followbot.services.controller.core import FollowController
+    from followbot.services.laser_legs import make_detector
+    from followbot.services.tracker.core import Tracker
+
+    detector, tracker, controller = make_detector("thesis"), Tracker(), FollowController()
+    times: dict[str, list[float]] = {"laser_legs": [], "tracker": [], "controller": []}
+    period_ns = 25_000_000
+    for j, scan in enumerate(scan_bank(k, n)):
+        stamp = 1_000_000_000 + j * period_ns
+        scan.stamp_ns = stamp
+        tracker.add_odometry(Odometry(stamp_ns=stamp, frame_id="odom", x_m=0, y_m=0, yaw_rad=0))
+        t0 = time.perf_counter_ns()
+        cands = detector.detect(scan)
+        t1 = time.perf_counter_ns()
+        target, _people = tracker.step(cands)
+        t2 = time.perf_counter_ns()
+        controller.on_target(target, period_ns / 1e9)
+        t3 = time.perf_counter_ns()
+        if j >= 20:  # warm-up: let tracks form
+            times["laser_legs"].append((t1 - t0) / 1e6)
+            times["tracker"].append((t2 - t1) / 1e6)
+            times["controller"].append((t3 - t2) / 1e6)
+    out = {}
+    for stage, v in times.items():
+        p50, p99 = _pct(v)
+        out[stage] = {"stage_p50_ms": p50, "stage_p99_ms": p99}
+    return out
+
+
+class Pipeline:
+    """laser_legs, tracker and controller as processes, fed and watched by this one."""
+
+    SERVICES = ("laser_legs", "tracker", "controller")
+
+    def __init__(self, log_dir) -> None:
+        from followbot.services.runtime.bus import ZenohBus
+        from followbot.services.runtime.node import Node
+        from followbot.services.runtime.session import free_loopback_endpoint, open_session
+        from followbot.services.runtime.settings import NodeSettings, ZenohSettings
+
+        self.endpoint = free_loopback_endpoint()
+        self.robot = f"bench{os.getpid()}"
+        self.session = open_session(ZenohSettings(listen=[self.endpoint]))
+        self.node = Node(
+            "bench_src", NodeSettings(robot=self.robot, health_period_s=3600),
+            ZenohBus(self.session),
+        )  # fmt: skip
+        self.scans = self.node.publisher("sensors/scan")
+        self.odom = self.node.publisher("sensors/odom")
+        self.arrivals: dict[int, int] = {}  # scan stamp -> receive time (monotonic ns)
+        self.alive: set[str] = set()
+        self.node.subscribe("control/cmd_vel", self._on_cmd)
+        for s in self.SERVICES:
+            self.node.watch_alive(
+                s, lambda up, s=s: (self.alive.add if up else self.alive.discard)(s)
+            )
+        env = dict(os.environ, RUST_LOG="error")
+        log_dir.mkdir(parents=True, exist_ok=True)
+        self.logs = [(log_dir / f"{s}.log").open("w") for s in self.SERVICES]
+        self.procs = [
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "followbot",
+                    "run",
+                    s,
+                    "--connect",
+                    self.endpoint,
+                    "--robot",
+                    self.robot,
+                    "--set",
+                    "log_level=warning",
+                ],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env=env,
+            )
+            for s, log in zip(self.SERVICES, self.logs, strict=True)
+        ]
+
+    def _on_cmd(self, cmd) -> None:
+        self.arrivals.setdefault(cmd.stamp_ns, time.monotonic_ns())
+
+    def wait_ready(self, timeout_s: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        bank = scan_bank(1, 10)
+        while time.monotonic() < deadline:
+            self.node.spin_once()  # liveliness events
+            if self.alive >= set(self.SERVICES):
+                stamp = self.send(bank[0])
+                time.sleep(0.05)
+                if stamp in self.arrivals:
+                    return
+            time.sleep(0.05)
+        raise RuntimeError(
+            f"the pipeline did not come up in {timeout_s:.0f} s (alive: {self.alive})"
+        )
+
+    def send(self, scan: LaserScan) -> int:
+        stamp = time.monotonic_ns()
+        self.odom.put(Odometry(stamp_ns=stamp, frame_id="odom", x_m=0.0, y_m=0.0, yaw_rad=0.0))
+        scan.stamp_ns = stamp
+        self.scans.put(scan)
+        return stamp
+
+    def stream(self, bank: list[LaserScan], rate_hz: float, n: int) -> list[int]:
+        """Send ``n`` scans at ``rate_hz`` (busy-waiting the last ms); the stamps sent."""
+        period = 1e9 / rate_hz
+        t0 = time.monotonic_ns()
+        stamps = []
+        for j in range(n):
+            due = t0 + j * period
+            while (left := due - time.monotonic_ns()) > 0:
+                if left > 1_500_000:
+                    time.sleep((left - 1_000_000) / 1e9)
+            stamps.append(self.send(bank[j % len(bank)]))
+        return stamps
+
+    def answered(self, stamps: list[int], wait_s: float = 1.5) -> list[float]:
+        """Latencies (ms) of the answered stamps, after waiting for stragglers."""
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline and not all(s in self.arrivals for s in stamps):
+            time.sleep(0.01)
+        return [(self.arrivals[s] - s) / 1e6 for s in stamps if s in self.arrivals]
+
+    def close(self) -> None:
+        for p in self.procs:
+            p.terminate()
+        for p in self.procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        for log in self.logs:
+            log.close()
+        self.node.close()
+        self.session.close()
+
+
+def run(log_dir, quick: bool = False, hop_floor_p50_ms: float | None = None) -> dict:
+    people = (1, 5, 10)
+    n = 150 if quick else 600
+    out: dict = {"in_process": {}, "e2e": {}, "sustained": []}
+    for k in people:
+        print(f"  in-process stages, {k} people ...", file=sys.stderr, flush=True)
+        out["in_process"][k] = in_process(k, n=min(n, 300))
+    pipe = Pipeline(log_dir)
+    try:
+        print("  starting laser_legs, tracker, controller ...", file=sys.stderr, flush=True)
+        pipe.wait_ready()
+        for k in people:
+            print(f"  end to end at 40 Hz, {k} people ...", file=sys.stderr, flush=True)
+            bank = scan_bank(k, 200)
+            pipe.stream(bank, 40.0, 40)  # warm-up: tracks form
+            stamps = pipe.stream(bank, 40.0, n // 2 if quick else n)
+            lat = pipe.answered(stamps)
+            p50, p99 = _pct(lat) if lat else (math.nan, math.nan)
+            out["e2e"][k] = {"p50_ms": p50, "p99_ms": p99, "sent": len(stamps),
+                             "answered": len(lat)}  # fmt: skip
+        bank = scan_bank(5, 200)
+        best = 0
+        for rate in (100, 200, 300, 500, 750, 1000, 1500, 2000):
+            print(f"  sustained rate {rate} scans/s, 5 people ...", file=sys.stderr, flush=True)
+            stamps = pipe.stream(bank, rate, int(rate * (1.0 if quick else 2.0)))
+            lat = pipe.answered(stamps, wait_s=2.0)
+            p50, p99 = _pct(lat) if lat else (math.nan, math.nan)
+            ok = len(lat) == len(stamps)
+            out["sustained"].append({"rate_hz": rate, "sent": len(stamps), "answered": len(lat),
+                                     "p50_ms": p50, "p99_ms": p99, "ok": ok})  # fmt: skip
+            if not ok:
+                break
+            best = rate
+            time.sleep(0.5)
+        out["max_sustained_scans_per_s"] = best
+    finally:
+        pipe.close()
+    worst = max(out["e2e"].values(), key=lambda e: e["p50_ms"])
+    out["e2e_p50_ms"] = worst["p50_ms"]
+    out["e2e_p99_ms"] = max(e["p99_ms"] for e in out["e2e"].values())
+    stages10 = out["in_process"][people[-1]]
+    out["stages"] = stages10
+    if hop_floor_p50_ms is not None:
+        budget = sum(s["stage_p50_ms"] for s in stages10.values()) + 4 * hop_floor_p50_ms
+        out["e2e_over_budget"] = out["e2e_p50_ms"] / budget
+        out["budget_ms"] = budget
+    return out
+
+
+def format_report(p: dict) -> str:
+    lines = ["", "pipeline (laser_legs -> tracker -> controller)", "",
+             "in one process, per scan             p50 ms   p99 ms"]  # fmt: skip
+    for k, stages in p["in_process"].items():
+        for stage, s in stages.items():
+            lines.append(f"  {k:>2} people  {stage:<12}           {s['stage_p50_ms']:7.3f}  "
+                         f"{s['stage_p99_ms']:7.3f}")  # fmt: skip
+    lines += ["", "end to end over Zenoh, scan -> cmd_vel  p50 ms   p99 ms   answered   target"]
+    for k, e in p["e2e"].items():
+        lines.append(f"  {k:>2} people                         {e['p50_ms']:7.3f}  "
+                     f"{e['p99_ms']:7.3f}   {e['answered']}/{e['sent']}"
+                     "    p50 <= 2, p99 <= 5")  # fmt: skip
+    lines += ["", "sustained rate, 5 people              answered   p99 ms"]
+    for s in p["sustained"]:
+        mark = "" if s["ok"] else "   <- scans lost"
+        answered = f"{s['answered']:>6}/{s['sent']:<6}"
+        lines.append(
+            f"  {s['rate_hz']:>5} scans/s                   {answered} {s['p99_ms']:7.2f}{mark}"
+        )
+    lines.append(f"  highest with every scan answered: {p['max_sustained_scans_per_s']} scans/s"
+                 "   (target >= 500)")  # fmt: skip
+    if "e2e_over_budget" in p:
+        lines.append(
+            f"  e2e p50 / (stages p50 + 4 hops at the floor = {p['budget_ms']:.3f} ms): "
+            f"{p['e2e_over_budget']:.2f}x   (target <= 3x)"
+        )
+    return "\n".join(lines)
