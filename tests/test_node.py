@@ -129,6 +129,9 @@ def test_liveliness_token_and_watch(net):
     watcher.watch_alive("worker", events.append)
     worker = make_node(net, service="worker")
     watcher.spin_once()
+    assert events == []  # not alive until it has set up and announces itself
+    worker.announce()
+    watcher.spin_once()
     worker.close()
     watcher.spin_once()
     assert events == [True, False]

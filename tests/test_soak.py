@@ -40,6 +40,7 @@ def test_soak_no_loss_flat_latency_bounded_memory(spawn, endpoint, robot, tmp_pa
         "run", "synthetic", "--robot", robot, "--connect", endpoint,
         "--set", f"scan_rate_hz={rate}", "--set", f"count={int(rate * duration)}",
         "--set", "odom_rate_hz=0", "--set", "wait_for_subscribers_s=10",
+        "--set", "reliable=true",  # the soak measures the pipeline's losses, not the sender's
         "--set", "health_period_s=5",
     )  # fmt: skip
     t0 = time.monotonic()

@@ -194,7 +194,7 @@ class Node:
         self.notes: list[str] = []
         self._health_pub = bus.publisher(self.keys.health(service))
         self._last_health: tuple[int, dict[str, int], dict[str, int]] | None = None
-        self.bus.liveliness_token(self.keys.alive(service))
+        self._announced = False
         self.every(settings.health_period_s, self.publish_health, name="health")
 
     # ------------------------------------------------------------------ declaration
@@ -259,6 +259,17 @@ class Node:
             time.sleep(0.01)
         return True
 
+    def announce(self) -> None:
+        """Declare the liveliness token (once). :meth:`run` does it before serving, so that
+        'alive' means every subscription of the service's setup is in place."""
+        if not self._announced:
+            self._announced = True
+            self.bus.liveliness_token(self.keys.alive(self.service))
+
+    def call_soon(self, fn: Callable[[], None]) -> None:
+        """Run ``fn()`` in the loop thread, soon (thread-safe)."""
+        self._wake.put(fn)
+
     def on_stop(self, fn: Callable[[], None]) -> None:
         """Run ``fn()`` once when the loop ends (final summaries, flushing files)."""
         self._on_stop.append(fn)
@@ -267,7 +278,7 @@ class Node:
         """Call ``callback(alive)`` in the loop when ``service``'s liveliness changes."""
 
         def on_change(_key: str, alive: bool) -> None:
-            self._wake.put(lambda: callback(alive))
+            self.call_soon(lambda: callback(alive))
 
         self.bus.watch_liveliness(self.keys.alive(service), on_change)
 
@@ -295,6 +306,7 @@ class Node:
     def run(self, duration_s: float | None = None) -> int:
         """Serve until :meth:`stop`, SIGINT/SIGTERM or ``duration_s``; returns the exit code 0."""
         deadline = None if duration_s is None else time.monotonic_ns() + int(duration_s * 1e9)
+        self.announce()
         with _stop_on_signals(self):
             while not self._stop.is_set():
                 now = time.monotonic_ns()

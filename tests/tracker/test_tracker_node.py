@@ -47,9 +47,11 @@ def pipeline():
     tsettings = load_settings(TrackerNodeSettings, overrides=["acquire=nearest"])
     tracker = Node("tracker", tsettings, net.bus("tracker"))
     tracker_setup(tracker, tsettings)
+    tracker.announce()  # what run() does once set up
     csettings = load_settings(ControllerNodeSettings, overrides=["watchdog_period_s=0.02"])
     controller = Node("controller", csettings, net.bus("controller"))
     controller_setup(controller, csettings)
+    controller.announce()
     yield net, tracker, controller
     controller.close()
 
