@@ -99,6 +99,11 @@ class Simulation:
     def finished(self) -> bool:
         return self.t_ns >= self.duration_ns
 
+    @property
+    def next_tick_ns(self) -> int:
+        """Sim time of the next sensor instant, the one :meth:`tick` will jump to."""
+        return min(self._next.values())
+
     def command_velocity(self, v_mps: float, w_radps: float) -> None:
         """control/cmd_vel: takes effect from the next physics tick."""
         self.robot.command_velocity(v_mps, w_radps)

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 
+from followbot.schemas import LaserScan, Message, PanCommand, VelocityCommand
 from followbot.services.sim.scenario import Scenario
 
 
@@ -26,3 +29,15 @@ def scenario(**fields) -> Scenario:
 def standing(pid: int, x: float, y: float, heading_deg: float = 180.0, **extra) -> dict:
     """A person standing still at (x, y) with legs together."""
     return {"id": pid, "start": [x, y], "heading_deg": heading_deg, **extra}
+
+
+def controller_answer(scan: LaserScan) -> list[tuple[str, Message]]:
+    """A deterministic 'controller': speed from the nearest return, turn from the stamp."""
+    r = scan.ranges_m()
+    near = float(r[(r > 0.05) & (r < 50)].min())
+    v = 0.4 if near > 1.0 else 0.0
+    w = 0.6 * math.sin(scan.stamp_ns / 1e9)
+    return [
+        ("control/cmd_vel", VelocityCommand(stamp_ns=scan.stamp_ns, linear_mps=v, angular_radps=w)),
+        ("control/pan", PanCommand(stamp_ns=scan.stamp_ns, pan_rad=0.5 * w)),
+    ]

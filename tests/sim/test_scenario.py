@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 
 from followbot.services.sim.scenario import (
@@ -27,6 +28,14 @@ def test_builtin_library_is_there():
         "thesis_5_2_4_two_people",
         "livingston_box_occlusion",
         "door_corner",
+        "thesis_5_2_3_room_corridor",
+        "thesis_5_2_4_side_by_side",
+        "thesis_5_2_4_turn_apart",
+        "thesis_5_2_4_two_people_swapped",
+        "bellotto_cluttered_office",
+        "ristic_wall_corridor",
+        "ristic_circles",
+        "crowd_ten",
     ):
         assert expected in names
 
@@ -93,3 +102,38 @@ def test_json_schema_describes_the_format():
     assert "Scenario" in defs and "PersonSpec" in defs and "WalkStep" in defs
     assert defs["Scenario"]["additionalProperties"] is False
     assert "people" in defs["Scenario"]["properties"]
+
+
+def _clearance(points: np.ndarray, segments: np.ndarray, circles: np.ndarray) -> np.ndarray:
+    """Distance from each of (N, 2) points to the nearest wall segment or circle surface."""
+    d = np.full(points.shape[0], np.inf)
+    if segments.shape[0]:
+        a, e = segments[None, :, :2], segments[None, :, 2:] - segments[None, :, :2]
+        rel = points[:, None, :] - a
+        t = np.clip((rel * e).sum(-1) / np.maximum((e * e).sum(-1), 1e-12), 0.0, 1.0)
+        d = np.minimum(d, np.linalg.norm(rel - t[..., None] * e, axis=-1).min(axis=1))
+    if circles.shape[0]:
+        dc = np.linalg.norm(points[:, None, :] - circles[None, :, :2], axis=-1) - circles[:, 2]
+        d = np.minimum(d, dc.min(axis=1))
+    return d
+
+
+@pytest.mark.parametrize("name", builtin_names())
+def test_builtin_people_never_walk_through_walls_or_obstacles(name):
+    sim = Simulation(load_builtin(name))
+    times = np.arange(0.0, sim.scenario.duration_s, 0.2)
+    for person in sim.people:
+        legs = np.concatenate([person.state(float(t)).legs for t in times])
+        gap = _clearance(legs, sim.world.segments, sim.world.circles) - person.leg_radius_m
+        worst = int(np.argmin(gap))
+        assert gap[worst] > 0.0, (
+            f"person {person.id} at t={times[worst // 2]:.1f} s: a leg at {legs[worst]} "
+            f"overlaps the static world by {-gap[worst]:.3f} m"
+        )
+
+
+@pytest.mark.parametrize("name", [n for n in builtin_names() if n != "door_corner"])
+def test_builtin_target_starts_visible_to_the_laser(name):
+    sim = Simulation(load_builtin(name))
+    (target,) = [p for p in sim.truth().people if p.is_target]
+    assert target.visible_laser
