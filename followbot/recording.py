@@ -14,7 +14,6 @@ converting ROS messages (followbot.bags).
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import time
@@ -73,74 +72,43 @@ def record_main(argv: list[str] | None = None) -> int:
 
 
 def _record(topics: list[str], output: Path, duration: float | None, settings) -> int:
-    from mcap.writer import Writer
-
-    import followbot
-    from followbot.schemas import SCHEMA_VERSION, topic_type
-    from followbot.schemas.export import message_schemas
+    from followbot.mcapio import McapTopicWriter
     from followbot.services.runtime.node import zenoh_node
 
-    defs = message_schemas()["$defs"]
-    counts = dict.fromkeys(topics, 0)
-    output.parent.mkdir(parents=True, exist_ok=True)
     tty = sys.stderr.isatty()
-    with output.open("wb") as f, zenoh_node("record", settings) as node:
-        writer = Writer(f)
-        writer.start(profile="", library=f"followbot {followbot.__version__}")
-        writer.add_metadata(
-            "followbot",
-            {
-                "robot": settings.robot,
-                "followbot_version": followbot.__version__,
-                "schema_version": str(SCHEMA_VERSION),
-            },
-        )
-        channels = {}
-        for t in topics:
-            name = topic_type(t).__name__
-            schema = {"$defs": defs, "$ref": f"#/$defs/{name}"}
-            sid = writer.register_schema(name, "jsonschema", json.dumps(schema).encode())
-            channels[t] = writer.register_channel(t, "msgpack", sid, {"key": node.keys.topic(t)})
-
-        def writer_for(topic: str):
-            channel = channels[topic]
-
-            def write(message, payload: bytes) -> None:
-                writer.add_message(
-                    channel,
-                    log_time=time.time_ns(),
-                    data=payload,
-                    publish_time=message.stamp_ns,
-                    sequence=counts[topic] & 0xFFFFFFFF,
+    with zenoh_node("record", settings) as node:
+        out = McapTopicWriter(output, settings.robot)
+        try:
+            for t in topics:
+                node.subscribe(
+                    t,
+                    lambda m, payload, t=t: out.write(t, payload, m.stamp_ns, time.time_ns()),
+                    with_payload=True,
                 )
-                counts[topic] += 1
+            t0 = time.monotonic()
 
-            return write
+            def show() -> None:
+                total = sum(out.counts.values())
+                size = out.size_bytes() / 2**20
+                _progress(tty, f"  recording {time.monotonic() - t0:6.1f} s  {total} messages  "
+                               f"{size:.1f} MiB")  # fmt: skip
 
-        for t in topics:
-            node.subscribe(t, writer_for(t), with_payload=True)
-        t0 = time.monotonic()
-
-        def show() -> None:
-            total = sum(counts.values())
-            size = f.tell() / 2**20
-            _progress(tty, f"  recording {time.monotonic() - t0:6.1f} s  {total} messages  "
-                           f"{size:.1f} MiB")  # fmt: skip
-
-        node.every(1.0, show, name="progress")
-        print(f"recording {len(topics)} topics of robot '{settings.robot}' to {output}; "
-              "Ctrl-C stops", file=sys.stderr)  # fmt: skip
-        node.run(duration)
-        node.close()  # no more callbacks before the file is finished
-        writer.finish()
+            node.every(1.0, show, name="progress")
+            print(f"recording {len(topics)} topics of robot '{settings.robot}' to {output}; "
+                  "Ctrl-C stops", file=sys.stderr)  # fmt: skip
+            node.run(duration)
+            node.close()  # no more callbacks before the file is finished
+        finally:
+            out.close()
     if tty:
         sys.stderr.write("\n")
     elapsed = time.monotonic() - t0
     print(f"wrote {output} ({output.stat().st_size / 2**20:.2f} MiB, {elapsed:.1f} s)")
-    for t, n in counts.items():
+    for t in topics:
+        n = out.counts.get(t, 0)
         if n:
             print(f"  {t:<28} {n:>8} messages  {n / max(elapsed, 1e-9):8.1f} Hz")
-    silent = [t for t, n in counts.items() if not n]
+    silent = [t for t in topics if not out.counts.get(t)]
     if silent:
         print(f"  no messages on: {', '.join(silent)}")
     return 0
