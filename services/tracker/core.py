@@ -217,6 +217,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Without vision only: a lost target is re-taken by the track nearest to where it was lost,
     within this distance (0: never without vision)."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    reject_votes: Annotated[int, msgspec.Meta(ge=0, le=100)] = 2
+    """Drop the target after this many consecutive verifications that saw its candidate and
+    rejected it (appearance distance above the verifier's threshold): the robot stops rather
+    than follow someone vision says is not the target (0: never). Beyond the thesis, which
+    always takes the nearest match."""
     """Consecutive verifications preferring another track before the target moves to it."""
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
@@ -279,6 +284,8 @@ class Tracker:
         self._pending: list[Verification] = []
         self._model: TargetModel | None = None
         self._switch: tuple[int, int] = (-1, 0)  # (track preferred by vision, consecutive votes)
+        self._rejects = 0  # consecutive verifications that rejected the target's candidate
+        self.target_rejections = 0  # targets dropped because vision rejected them
         self._vision_stamp: int | None = None
         self._vision_sources = False
         self.vision_alive = False
@@ -422,6 +429,7 @@ class Tracker:
         return tid
 
     def _set_target(self, tid: int) -> None:
+        self._rejects = 0
         if self.target_id >= 0 and tid != self.target_id:
             self.target_switches += 1
         self.target_id = tid
@@ -499,6 +507,7 @@ class Tracker:
         self.verifications_applied += 1
         if self._vision_stamp is None or v.stamp_ns > self._vision_stamp:
             self._vision_stamp = v.stamp_ns
+        self._judge_target(v, scan)
         if v.chosen < 0:
             return
         chosen = v.candidates[v.chosen]
@@ -525,6 +534,26 @@ class Tracker:
         if votes >= self.settings.switch_votes:
             self._set_target(tid)
             self._vision_sources = True
+
+    def _judge_target(self, v: Verification, scan: _Scan) -> None:
+        """Negative evidence: vision saw the target's candidate and said it is not the target."""
+        if self.target_id < 0 or v.threshold is None or not self.settings.reject_votes:
+            return
+        mine = [i for i, tid in scan.assoc.items() if tid == self.target_id]
+        judged = {c.index: c for c in v.candidates}
+        seen = [judged[i] for i in mine if i in judged and judged[i].in_view]
+        if not seen or seen[0].distance is None:
+            return  # not in view: no evidence either way
+        if v.chosen >= 0 and v.candidates[v.chosen].index in mine:
+            self._rejects = 0
+            return
+        if seen[0].distance <= v.threshold:
+            return  # close enough, only another was closer: the switch votes decide
+        self._rejects += 1
+        if self._rejects >= self.settings.reject_votes:
+            self._rejects = 0
+            self.target_rejections += 1
+            self._lose_target(self.tracks[self.target_id])
 
     # ------------------------------------------------------------------ outputs
 

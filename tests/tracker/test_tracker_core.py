@@ -373,3 +373,63 @@ def test_repeated_stamp_is_answered_without_changing_the_state():
     b, _ = trk.step(cands(SCAN_NS, (5.0, 0.0)))
     assert b.stamp_ns == a.stamp_ns and "out_of_order" in b.flags
     assert (b.x_m, b.y_m) == (a.x_m, a.y_m)
+
+
+def rejection(stamp_ns, xy, distance, threshold=0.8):
+    """Vision saw one candidate at ``xy`` and judged it ``distance`` from the model."""
+    return Verification(
+        stamp_ns=stamp_ns,
+        image_stamp_ns=stamp_ns,
+        model_id=1,
+        verifier="test",
+        candidates=[
+            VerifiedCandidate(index=0, x_m=xy[0], y_m=xy[1], in_view=True, distance=distance)
+        ],
+        chosen=0 if distance <= threshold else -1,
+        threshold=threshold,
+    )
+
+
+@pytest.mark.parametrize("reject_votes", [1, 2, 3])
+def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
+    """Following someone vision says is not the target (e.g. after a crossing swapped the
+    tracks): after reject_votes rejections the target is dropped and the robot stops. Vision
+    answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
+    trk = Tracker(TrackerSettings(reject_votes=reject_votes))
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    target, _ = trk.step(cands(0, (2.0, 0.0)))
+    assert target.status == "tracking"
+    statuses = []
+    for k in range(1, 7):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        statuses.append(target.status)
+        trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=1.2))
+    # the rejections of scans 1..R are applied at steps 2..R+1
+    assert statuses[:reject_votes] == ["tracking"] * reject_votes
+    assert statuses[reject_votes] == "lost"
+    assert trk.target_rejections >= 1
+    # it comes back only by appearance: a verification that accepts the person
+    trk2_k = 7
+    still_robot(trk, trk2_k * SCAN_NS)
+    trk.step(cands(trk2_k * SCAN_NS, (2.0, 0.0)))
+    trk.add_verification(rejection(trk2_k * SCAN_NS, (2.0, 0.0), distance=0.3))
+    still_robot(trk, (trk2_k + 1) * SCAN_NS)
+    target, _ = trk.step(cands((trk2_k + 1) * SCAN_NS, (2.0, 0.0)))
+    assert target.status == "tracking"
+
+
+def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
+    trk = Tracker(TrackerSettings(reject_votes=2))
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    for k, d in enumerate([1.2, 0.3, 1.2, 0.3, 1.2, 0.3], start=1):  # never two in a row
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        assert target.status == "tracking"
+        trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
+    assert trk.target_rejections == 0
