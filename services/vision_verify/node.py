@@ -228,8 +228,15 @@ class VisionVerify:
                 continue
             if latest_img is None:
                 continue
-            if stamp > latest_img and not (0 < stamp - latest_img <= self.period_ns / 2):
-                continue  # the next image may be nearer: wait for it
+            if (
+                stamp > latest_img
+                and not (0 < stamp - latest_img <= self.period_ns / 2)
+                and not self.s.answer_every_scan
+            ):
+                # Live: the next image may be nearer, wait for it. In lock-step the source has
+                # sent every image due at or before the scan (docs/runtime.md, rule 1): no
+                # nearer one can come before we answer, so judge with what we have.
+                continue
             frame = self._nearest_frame(stamp)
             if frame is None:
                 self._drop(stamp, "scan_no_image")
