@@ -118,6 +118,12 @@ def _cmd_target(args: argparse.Namespace, rest: list[str]) -> int:
     return main(rest)
 
 
+def _cmd_eval(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.eval_cli import main
+
+    return main(rest)
+
+
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.bench import main
 
@@ -183,6 +189,13 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     p.set_defaults(fn=_cmd_target, passthrough=True)
+
+    p = sub.add_parser(
+        "eval",
+        help="scenarios x presets through the real pipeline: metrics, plots, report",
+        add_help=False,
+    )
+    p.set_defaults(fn=_cmd_eval, passthrough=True)
 
     p = sub.add_parser(
         "record", help="record topics to MCAP (`followbot record --help`)", add_help=False
