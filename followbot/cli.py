@@ -94,6 +94,12 @@ def _cmd_demo(args: argparse.Namespace, rest: list[str]) -> int:
     return main(rest)
 
 
+def _cmd_smoke(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.smoke import main
+
+    return main(rest)
+
+
 def _cmd_record(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.recording import record_main
 
@@ -172,9 +178,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(fn=_cmd_schemas)
 
     p = sub.add_parser(
-        "demo", help="run the live demo (options: `followbot demo --help`)", add_help=False
+        "demo",
+        help="the whole system follows a person in the simulator (`followbot demo --help`)",
+        add_help=False,
     )
     p.set_defaults(fn=_cmd_demo, passthrough=True)
+
+    p = sub.add_parser(
+        "smoke",
+        help="transport smoke: synthetic sensors to a monitor over Zenoh",
+        add_help=False,
+    )
+    p.set_defaults(fn=_cmd_smoke, passthrough=True)
 
     p = sub.add_parser(
         "up",

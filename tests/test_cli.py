@@ -21,7 +21,7 @@ def followbot(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
 def test_help_lists_the_commands():
     out = followbot("--help")
     assert out.returncode == 0
-    for cmd in ("run", "services", "topics", "schemas", "demo", "bench"):
+    for cmd in ("run", "services", "topics", "schemas", "demo", "smoke", "bench", "eval", "up"):
         assert cmd in out.stdout
 
 
@@ -60,8 +60,8 @@ def test_topics_lists_every_topic():
     assert "sensors/scan" in out.stdout and "LaserScan" in out.stdout
 
 
-def test_demo_runs_real_processes_and_reports_measured_figures(tmp_path):
-    out = followbot("demo", "--duration", "2", "--output", str(tmp_path), timeout=90)
+def test_smoke_runs_real_processes_and_reports_measured_figures(tmp_path):
+    out = followbot("smoke", "--duration", "2", "--output", str(tmp_path), timeout=90)
     assert out.returncode == 0, out.stdout + out.stderr
     summary = json.loads((tmp_path / "summary.json").read_text())
     scans = summary["topics"]["sensors/scan"]
@@ -97,3 +97,17 @@ def test_target_command_reaches_vision_verify(spawn, endpoint, robot):
     vision.wait_for_output("target model dropped", timeout=10)
     nobody = followbot("target", "reset", "--robot", robot + "x", "--wait", "0.5")
     assert nobody.returncode == 1 and "no vision_verify listening" in nobody.stderr
+
+
+def test_demo_follows_the_right_person_and_writes_its_outputs(tmp_path):
+    """make demo: the whole system in the simulator; figures, report, plots, recording."""
+    out = followbot("demo", "--output", str(tmp_path), timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "followed the right person:" in out.stdout
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    m = summary["scenarios"]["thesis_5_2_4_two_people"]
+    assert m["tracked_visible_share"] > 0.8 and m["rmse_m"] < 0.2
+    assert m["identity_switches"] <= 1 and m["wrong_target_s"] < 1.0
+    assert (tmp_path / "report.md").is_file()
+    assert len(list((tmp_path / "plots").glob("*.png"))) == 3
+    assert (tmp_path / "run" / "run.mcap").stat().st_size > 10_000
