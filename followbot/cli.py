@@ -130,6 +130,12 @@ def _cmd_eval(args: argparse.Namespace, rest: list[str]) -> int:
     return main(rest)
 
 
+def _cmd_track(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.track import main
+
+    return main(rest)
+
+
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.bench import main
 
@@ -211,6 +217,13 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     p.set_defaults(fn=_cmd_eval, passthrough=True)
+
+    p = sub.add_parser(
+        "track",
+        help="run the pipeline over a recording; tracks to MCAP and CSV (`followbot track -h`)",
+        add_help=False,
+    )
+    p.set_defaults(fn=_cmd_track, passthrough=True)
 
     p = sub.add_parser(
         "record", help="record topics to MCAP (`followbot record --help`)", add_help=False

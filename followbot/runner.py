@@ -64,6 +64,8 @@ def stage_settings(preset: str, lockstep: bool) -> dict[str, dict[str, Any]]:
     out["vision_verify"]["auto_acquire"] = True
     if lockstep:
         out["vision_verify"]["answer_every_scan"] = True  # rule 2 of the lock-step protocol
+        # criterion 3 gates scan k+1 on the target of scan k: wait for it, deterministically
+        out["laser_legs"]["lockstep_target_wait_s"] = 0.5
     return out
 
 

@@ -13,6 +13,8 @@ Health) — the lock-step rule 2 of docs/runtime.md.
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from typing import Annotated, Any
 
 import msgspec
@@ -39,6 +41,10 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
     """A target older than this (scan stamp minus target stamp) is not used for gating."""
     odometry_max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.2
+    lockstep_target_wait_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.0
+    """Lock-step runs: hold a scan until the tracker's target for the previous scan has
+    arrived (it races the next scan over another link), at most this long. 0 (live): never
+    wait, use whatever target is newest."""
     laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
 
@@ -77,7 +83,41 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
         max_extrapolation_s=settings.odometry_max_extrapolation_s,
     )
 
+    # Lock-step: scans held until the target naming the previous scan arrives (see settings).
+    held: deque[tuple[LaserScan, float]] = deque()
+    stamps = {"scan": -1, "target": -1}
+    counts = {"waits": 0, "wait_timeouts": 0}
+    wait_s = settings.lockstep_target_wait_s if settings.use_target_prediction else 0.0
+
+    def ready() -> bool:
+        # the tracker answers every scan, so once it has answered any, wait for its answer
+        # to the previous scan before gating the next one on it
+        return stamps["target"] < 0 or stamps["target"] >= stamps["scan"]
+
     def on_scan(scan: LaserScan) -> None:
+        if wait_s > 0 and (held or not ready()):
+            held.append((scan, time.monotonic()))
+            counts["waits"] += 1
+            return
+        process(scan)
+
+    def on_target(target) -> None:
+        predictor.add_target(target)
+        stamps["target"] = max(stamps["target"], target.stamp_ns)
+        release()
+
+    def release(force: bool = False) -> None:
+        while held and (force or ready()):
+            process(held.popleft()[0])
+            force = False
+
+    def check_held() -> None:
+        if held and time.monotonic() - held[0][1] > wait_s:
+            counts["wait_timeouts"] += 1
+            release(force=True)
+
+    def process(scan: LaserScan) -> None:
+        stamps["scan"] = max(stamps["scan"], scan.stamp_ns)
         prediction = predictor.predict(scan) if settings.use_target_prediction else None
         try:
             result = detector.detect(scan, prediction)
@@ -89,14 +129,18 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
 
     node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
     if settings.use_target_prediction:
-        node.subscribe("tracking/target", predictor.add_target, policy="all")
+        node.subscribe("tracking/target", on_target, policy="all")
         node.subscribe("sensors/odom", predictor.add_odometry, policy="all")
+    if wait_s > 0:
+        node.every(0.005, check_held, name="held_scans")
 
     def notes() -> None:
         node.notes = [
             f"detector={detector.name}",
             f"gated_scans={predictor.used}",
             f"prediction_skipped={predictor.skipped}",
+            f"lockstep_waits={counts['waits']}",
+            f"lockstep_wait_timeouts={counts['wait_timeouts']}",
         ]
 
     notes()

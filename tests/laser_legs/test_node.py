@@ -253,3 +253,20 @@ def _try_scan(payload: bytes):
         return decode(LaserScan, payload)
     except RejectedMessage:
         return None
+
+
+def test_lockstep_holds_a_scan_until_the_target_of_the_previous_scan_arrives():
+    """In lock-step the tracker's answer to scan k races scan k+1; gating k+1 must use it."""
+    h = Harness(lockstep_target_wait_s=5.0)
+    h.put("sensors/odom", Odometry(stamp_ns=0, x_m=0.0, y_m=0.0, yaw_rad=0.0))
+    h.put("sensors/odom", Odometry(stamp_ns=900 * MS, x_m=0.0, y_m=0.0, yaw_rad=0.0))
+    h.put("tracking/target", target(0, 1.5, -0.8))  # the tracker is in the loop
+    h.put("sensors/scan", two_people(100 * MS))
+    assert len(h.out) == 1
+    # scan 2 arrives before the tracker's answer to scan 1: held, not gated on a stale target
+    h.put("sensors/scan", two_people(200 * MS))
+    assert len(h.out) == 1
+    h.put("tracking/target", target(100 * MS, 1.5, 0.8))  # the answer to scan 1
+    assert len(h.out) == 2
+    (c,) = h.out[-1].candidates  # gated on the target of scan 1, not of scan 0
+    assert math.hypot(c.x_m - 1.5, c.y_m - 0.8) < 0.1
