@@ -61,6 +61,11 @@ Verification accuracy (``verification_*``)
     last person it was on (earlier scans, skipping scans on nobody or untracked) was the
     target. ``wrong_target_s``: total duration of scans on another person.
 
+``acquired_s``
+    Time from the first scan to the first scan with the target tracked (None: never; e.g. the
+    thesis acquisition never built a target model because the target did not move close
+    enough in front of the still robot).
+
 ``follow_distance_share``
     Time with the true robot-to-target distance in [1.0, 2.0] m divided by the time tracked
     (``tracked_s``).
@@ -310,6 +315,8 @@ def _tracking(records: list[ScanRecord], dt_s: np.ndarray, s: EvaluationSettings
     visible = good = switches = 0
     wrong_s = tracked_s = band_s = 0.0
     last_on: int | None = None  # id of the last person the estimate was on
+    acquired_s: float | None = None  # first time the target was tracked (None: never)
+    t0 = records[0].stamp_ns if records else 0
     lo, hi = s.follow_band_m
     for rec, dt in zip(records, dt_s.tolist(), strict=True):
         tgt = _target_truth(rec.truth)
@@ -322,6 +329,8 @@ def _tracking(records: list[ScanRecord], dt_s: np.ndarray, s: EvaluationSettings
                 good += e <= s.track_match_m
         if not tracked:
             continue
+        if acquired_s is None:
+            acquired_s = (rec.stamp_ns - t0) / 1e9
         tracked_s += dt
         if tgt is not None and lo <= math.hypot(tgt.robot_x_m, tgt.robot_y_m) <= hi:
             band_s += dt
@@ -340,6 +349,7 @@ def _tracking(records: list[ScanRecord], dt_s: np.ndarray, s: EvaluationSettings
         "identity_switches": switches,
         "wrong_target_s": wrong_s,
         "tracked_s": tracked_s,
+        "acquired_s": acquired_s,
         "follow_distance_share": _share(band_s, tracked_s),
     }
 
@@ -712,6 +722,7 @@ def plot_run(
 
 #: (metric, heading, column, better) of the report's tables; better is "high", "low" or "".
 KEY_METRICS: list[tuple[str, str, str, str]] = [
+    ("acquired_s", "Target first tracked at (s; - = never)", "acq. s", "low"),
     ("tracked_visible_share", "Tracked while visible (share)", "tracked", "high"),
     ("rmse_m", "Target RMSE (m)", "RMSE m", "low"),
     ("identity_switches", "Identity switches", "ID sw.", "low"),

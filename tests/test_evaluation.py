@@ -506,9 +506,9 @@ def test_single_preset_report_has_one_results_table(tmp_path):
     text = write_report(runs, tmp_path, plots=False).read_text()
     assert "## Results" in text
     assert "## Presets side by side" not in text
-    assert "| scenario | tracked | RMSE m | ID sw. |" in text
-    assert "| a | 1 | 0.1 | 0 |" in text
-    assert "| b | 1 | 0.1 | 0 |" in text
+    assert "| scenario | acq. s | tracked | RMSE m | ID sw. |" in text
+    assert "| a | 0 | 1 | 0.1 | 0 |" in text  # tracked from the first scan
+    assert "| b | 0 | 1 | 0.1 | 0 |" in text
 
 
 def test_plot_run_with_gaps_switches_and_no_latency(tmp_path):
@@ -614,3 +614,16 @@ def test_smoke_simulated_run_writes_plots_and_report(tmp_path):
     assert entry["rmse_m"] == pytest.approx(0.05)
     assert entry["identity_switches"] == 0
     assert entry["latency_ms"]["controller"]["n"] == 100
+
+
+def test_acquired_s_is_the_first_tracked_time_or_none():
+    def run(first_tracked):
+        return run_of([
+            record(k, [person(TARGET, 2.0, 0.0)],
+                   target=track(k, 2.0, 0.0, "tracking" if first_tracked is not None
+                                and k >= first_tracked else "initialising"))
+            for k in range(8)
+        ])  # fmt: skip
+
+    assert compute_metrics(run(3))["acquired_s"] == pytest.approx(0.3)
+    assert compute_metrics(run(None))["acquired_s"] is None
