@@ -168,3 +168,17 @@ services:
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert out.returncode == 2 and "hosts: a, b" in out.stderr
+
+
+def test_environment_variables_fill_compose_files(tmp_path, monkeypatch):
+    path = write(tmp_path, "robot: ${FB_ROBOT:-r1}\nservices:\n  monitor:\n    settings:\n"
+                           "      zenoh: {connect: ['tcp/${FB_HOST}:7447']}\n")  # fmt: skip
+    monkeypatch.setenv("FB_HOST", "127.0.0.1")
+    c = load_compose(path)
+    assert c.robot == "r1"
+    assert service_settings(c, "monitor")["zenoh"]["connect"] == ["tcp/127.0.0.1:7447"]
+    monkeypatch.setenv("FB_ROBOT", "r2")
+    assert load_compose(path).robot == "r2"
+    monkeypatch.delenv("FB_HOST")
+    with pytest.raises(ComposeError, match=r"\$\{FB_HOST\} is not set"):
+        load_compose(path)

@@ -21,6 +21,8 @@ Settings of a service are merged, lowest first: the preset's choices for it, the
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -102,7 +104,8 @@ class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
 def load_compose(path: str | Path) -> Compose:
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        text = expand_env(path.read_text(), path)
+        data = yaml.safe_load(text)
     except OSError as exc:
         raise ComposeError(f"cannot read compose file {path}: {exc.strerror}") from None
     except yaml.YAMLError as exc:
@@ -131,6 +134,27 @@ def load_compose(path: str | Path) -> Compose:
                 f"hosts: {', '.join(sorted(compose.hosts))}"
             )
     return compose
+
+
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
+
+
+def expand_env(text: str, path: Path | str = "compose file") -> str:
+    """``${VAR}`` and ``${VAR:-default}`` from the environment (e.g. the robot's address in a
+    split deployment); an unset variable without a default is an error naming it."""
+
+    def sub(m: re.Match) -> str:
+        value = os.environ.get(m.group(1))
+        if value is None or value == "":
+            if m.group(2) is None:
+                raise ComposeError(
+                    f"{path}: ${{{m.group(1)}}} is not set (set it, or write "
+                    f"${{{m.group(1)}:-default}})"
+                )
+            return m.group(2)
+        return value
+
+    return _VAR.sub(sub, text)
 
 
 def _convert(path: Path, data: Any, type_: type, where: str):

@@ -57,6 +57,8 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
         connect = [DEFAULT_ENDPOINT]
     if connect:
         put("connect/endpoints", connect)
+        if settings.connect or settings.mode == "client":
+            put("connect/timeout_ms", int(settings.connect_timeout_s * 1000))
     if listen:
         put("listen/endpoints", listen)
     return conf

@@ -53,6 +53,9 @@ class ZenohSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     shared_memory: bool = False
     """Zenoh shared memory between processes of one host. Faster for images, but each
     publishing process leaves ~18 MiB of *.zenoh files in /dev/shm, so it is off by default."""
+    connect_timeout_s: Annotated[float, msgspec.Meta(ge=0, le=3600)] = 10.0
+    """How long opening a session keeps trying its connect endpoints (a router still starting)
+    before it fails."""
     lease_ms: Annotated[int, msgspec.Meta(ge=100, le=600_000)] = 1000
     """Link lease: a hung peer's liveliness token expires after about this long."""
 

@@ -70,7 +70,15 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
 
     node.subscribe("sensors/odom", tracker.add_odometry, policy="all")
     node.subscribe("perception/verification", tracker.add_verification, policy="all")
-    node.subscribe("perception/target_model", tracker.set_target_model, policy="all")
+    # Keep the model and answer queries with it: the tracker lives on the robot, so a vision
+    # worker that restarts (another machine, a crash) recovers the model instead of rebuilding.
+    model_pub = node.publisher("perception/target_model", serve_last=True)
+
+    def on_model(model) -> None:
+        tracker.set_target_model(model)
+        model_pub.serve(model)
+
+    node.subscribe("perception/target_model", on_model, policy="all")
     node.subscribe("perception/candidates", on_candidates, policy="all")
     node.watch_alive(settings.vision_service, tracker.set_vision_alive)
     node.log.info(

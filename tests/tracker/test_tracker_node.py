@@ -14,6 +14,7 @@ from followbot.schemas import (
     PanCommand,
     People,
     PersonCandidates,
+    TargetModel,
     TrackState,
     VelocityCommand,
     decode,
@@ -23,7 +24,7 @@ from followbot.services.controller.node import ControllerNodeSettings
 from followbot.services.controller.node import setup as controller_setup
 from followbot.services.runtime.bus import FakeNetwork
 from followbot.services.runtime.node import Node
-from followbot.services.runtime.settings import load_settings
+from followbot.services.runtime.settings import NodeSettings, load_settings
 from followbot.services.tracker.node import TrackerNodeSettings
 from followbot.services.tracker.node import setup as tracker_setup
 
@@ -114,3 +115,17 @@ def test_bad_estimator_setting_is_a_settings_error():
     node = Node("tracker", s, net.bus("t"))
     with pytest.raises(ValueError, match="valid names"):
         tracker_setup(node, s)
+
+
+def test_the_tracker_keeps_the_target_model_for_a_restarted_vision_worker(pipeline):
+    net, tracker, _ = pipeline
+    model = TargetModel(
+        stamp_ns=5, model_id=3, verifier="histogram", x_m=1.5, y_m=0.0, rect_width_px=60,
+        rect_height_px=180, image_width=320, image_height=240,
+    )  # fmt: skip
+    vision = Node("vision_verify", load_settings(NodeSettings), net.bus("vision"))
+    assert vision.query("perception/target_model") == []
+    net.put(KEYS.topic("perception/target_model"), encode(model))
+    tracker.spin_once()
+    (answer,) = vision.query("perception/target_model")  # the worker that built it is gone
+    assert answer.model_id == 3 and answer.x_m == 1.5
