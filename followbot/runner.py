@@ -79,6 +79,7 @@ def run_scenario(
     record: bool = True,
     progress: bool = True,
     timeout_s: float = 600.0,
+    vision: bool = True,
 ):
     """Run ``scenario`` with ``preset``; returns a :class:`followbot.evaluation.ScenarioRun`."""
     from followbot.evaluation import ScanRecord, ScenarioRun
@@ -96,11 +97,14 @@ def run_scenario(
     endpoint = free_loopback_endpoint()
     robot = f"eval{os.getpid()}x{int(time.monotonic() * 1000) % 100000}"
     lockstep = not realtime
+    stages = [s for s in STAGES if vision or s != "vision_verify"]
     settings = stage_settings(preset, lockstep)
+    if not vision:  # laser only: the target is the nearest person ahead (as followbot track)
+        settings["tracker"]["acquire"] = "nearest"
     settings["sim"] = {
         "scenario": scenario,
         "mode": "lockstep" if lockstep else "realtime",
-        "wait_for_stages": list(STAGES),
+        "wait_for_stages": stages,
         "start_timeout_s": 60.0,
         **({"seed": seed} if seed is not None else {}),
     }
@@ -135,7 +139,7 @@ def run_scenario(
     env = dict(os.environ, RUST_LOG="error", PYTHONUNBUFFERED="1")
     t_wall0 = time.monotonic()
     try:
-        for service in (*STAGES, "sim"):
+        for service in (*stages, "sim"):
             cfg = out_dir / f"{service}.settings.yaml"
             cfg.write_text(yaml.safe_dump({**common, **settings[service]}, sort_keys=False))
             logs[service] = (out_dir / f"{service}.log").open("w")
@@ -146,7 +150,7 @@ def run_scenario(
         last_shown = -1.0
         deadline = time.monotonic() + timeout_s
         while procs["sim"].poll() is None:
-            for s in STAGES:
+            for s in stages:
                 if procs[s].poll() is not None:
                     raise RunError(
                         f"{name} / {preset}: {s} exited {procs[s].returncode}: "
@@ -188,14 +192,14 @@ def run_scenario(
     if progress:
         _bar(f"{name} / {preset}", duration_s, duration_s, end=True)
 
-    records, timeouts = [], dict.fromkeys(STAGES, 0)
+    records, timeouts = [], dict.fromkeys(stages, 0)
     for stamp in sorted(stamps):
         st = stamps[stamp]
         if st.truth is None or st.scan_at is None:
             continue
         latency = {}
         for topic, (stage, _) in ANSWERS.items():
-            if stage is None:
+            if stage is None or stage not in stages:
                 continue
             if topic in st.arrived:
                 latency[stage] = (st.arrived[topic] - st.scan_at) / 1e6

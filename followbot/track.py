@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import heapq
 import os
 import subprocess
 import sys
@@ -142,7 +143,7 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             raise SystemExit(_fail(f"stages did not start: {missing}", out, missing))
         time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
         last_shown = 0.0
-        for _log_ns, topic, message in rec.messages():
+        for topic, message in sensor_order(rec.messages()):
             pubs[topic].put(message)
             if topic != "sensors/scan":
                 continue
@@ -193,6 +194,25 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
         print(f"  skipped {n}: {reason}")
     print(f"wrote {out / 'tracks.mcap'}, {out / 'people.csv'}, {out / 'target.csv'}")
     return 0
+
+
+def sensor_order(messages, window: int = 64):
+    """``(topic, message)`` in the order a lock-step source sends them: by stamp, the scan
+    last among messages of the same stamp (docs/runtime.md, rule 1).
+
+    A recording logs messages as they arrived, and two publishers' messages of one sensor
+    instant (odometry and scan, say) can arrive either way round; replaying a scan before its
+    odometry would make the tracker extrapolate. A window of ``window`` messages is re-sorted.
+    """
+    heap: list = []
+    for n, (_log_ns, topic, message) in enumerate(messages):
+        heapq.heappush(heap, (message.stamp_ns, topic == "sensors/scan", n, topic, message))
+        if len(heap) > window:
+            *_, t, m = heapq.heappop(heap)
+            yield t, m
+    while heap:
+        *_, t, m = heapq.heappop(heap)
+        yield t, m
 
 
 def _fail(why: str, out: Path, stages) -> int:

@@ -77,6 +77,9 @@ DEFAULT_STAGES: dict[str, list[str]] = {
     "controller": ["control/cmd_vel", "control/pan"],
 }
 
+#: Reasons of the controller's own (wall-clock) commands: not answers to a scan.
+WATCHDOG_REASONS = frozenset({"stale", "tracker_gone", "watchdog"})
+
 #: Period of the pump timer (start conditions, lock-step timeouts, real-time ticks), s.
 _PUMP_S = 0.005
 #: Longest stretch of ticks published in one go before the loop serves its inputs again, s.
@@ -188,6 +191,11 @@ class SimRunner:
 
     def _on_input(self, topic: str, msg: Message) -> None:
         if isinstance(msg, VelocityCommand | PanCommand):
+            if self.lockstep and msg.reason in WATCHDOG_REASONS:
+                # The controller's wall-clock watchdog reuses the last target's stamp; it does
+                # not answer a scan, and obeying it would depend on the machine's speed.
+                self.ignored_commands += 1
+                return
             if self.state != "running":
                 self.ignored_commands += 1  # nothing can derive from a scan not yet sent
             elif self.lockstep and (
