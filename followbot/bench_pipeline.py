@@ -6,7 +6,8 @@ Measured in one run (``followbot bench`` calls :func:`run`):
   controller on the same scans, p50/p99, for 1, 5 and 10 people in view;
 * end to end over Zenoh: scan published → the cmd_vel that names its stamp received, p50/p99,
   for 1, 5 and 10 people (three separate processes, four hops);
-* the highest scan rate the processes sustain with no scan lost (every scan answered);
+* the highest scan rate the processes sustain: every scan answered, p99 under 50 ms (a rate
+  answered only through a growing backlog is not sustained);
 * the ratio of end to end to (sum of in-process stage times + 4 hops at the bare floor).
 
 Vision is not on this path: the tracker never waits for it (DESIGN.md, timing model).
@@ -25,6 +26,8 @@ import numpy as np
 from followbot.schemas import LaserScan, Odometry
 
 N_BEAMS = 720
+#: A rate is sustained when every scan is answered with p99 latency under this (no backlog).
+SUSTAINED_P99_MS = 50.0
 FOV_RAD = math.radians(270.0)
 LEG_RADIUS_M = 0.06
 # A 12 m x 12 m room round the robot.
@@ -247,7 +250,8 @@ def run(log_dir, quick: bool = False, hop_floor_p50_ms: float | None = None) -> 
             stamps = pipe.stream(bank, rate, int(rate * (1.0 if quick else 2.0)))
             lat = pipe.answered(stamps, wait_s=2.0)
             p50, p99 = _pct(lat) if lat else (math.nan, math.nan)
-            ok = len(lat) == len(stamps)
+            # sustained: every scan answered, and no backlog building up (p99 stays small)
+            ok = len(lat) == len(stamps) and p99 <= SUSTAINED_P99_MS
             out["sustained"].append({"rate_hz": rate, "sent": len(stamps), "answered": len(lat),
                                      "p50_ms": p50, "p99_ms": p99, "ok": ok})  # fmt: skip
             if not ok:
@@ -283,12 +287,19 @@ def format_report(p: dict) -> str:
                      "    p50 <= 2, p99 <= 5")  # fmt: skip
     lines += ["", "sustained rate, 5 people              answered   p99 ms"]
     for s in p["sustained"]:
-        mark = "" if s["ok"] else "   <- scans lost"
+        mark = (
+            ""
+            if s["ok"]
+            else (
+                "   <- scans lost" if s["answered"] < s["sent"] else "   <- backlog (p99 > 50 ms)"
+            )
+        )
         answered = f"{s['answered']:>6}/{s['sent']:<6}"
         lines.append(
             f"  {s['rate_hz']:>5} scans/s                   {answered} {s['p99_ms']:7.2f}{mark}"
         )
-    lines.append(f"  highest with every scan answered: {p['max_sustained_scans_per_s']} scans/s"
+    lines.append(f"  highest sustained (all answered, p99 <= {SUSTAINED_P99_MS:.0f} ms): "
+                 f"{p['max_sustained_scans_per_s']} scans/s"
                  "   (target >= 500)")  # fmt: skip
     if "e2e_over_budget" in p:
         lines.append(
