@@ -88,58 +88,26 @@ def _cmd_schemas(args: argparse.Namespace, _rest) -> int:
     return 0
 
 
-def _cmd_demo(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.demo import main
-
-    return main(rest)
-
-
-def _cmd_smoke(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.smoke import main
-
-    return main(rest)
-
-
-def _cmd_record(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.recording import record_main
-
-    return record_main(rest)
+#: Commands that hand every argument after their name to a module's ``main(argv)``.
+PASSTHROUGH: dict[str, tuple[str, str, str]] = {
+    # name: (module, function, help)
+    "demo": ("followbot.demo", "main", "the whole system follows a person in the simulator"),
+    "smoke": ("followbot.smoke", "main", "transport smoke: synthetic sensors to a monitor"),
+    "up": ("followbot.up", "main", "start and supervise a deployment from a compose file"),
+    "target": ("followbot.target", "main", "acquire / reset / save / load the target model"),
+    "eval": ("followbot.eval_cli", "main", "scenarios x presets through the pipeline: report"),
+    "track": ("followbot.track", "main", "run the pipeline over a recording; tracks to CSV"),
+    "record": ("followbot.recording", "record_main", "record topics to MCAP"),
+    "replay": ("followbot.recording", "replay_main", "replay an MCAP file or a ROS 1/2 bag"),
+    "bench": ("followbot.bench", "main", "run the benchmarks"),
+}
 
 
-def _cmd_replay(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.recording import replay_main
+def _cmd_passthrough(args: argparse.Namespace, rest: list[str]) -> int:
+    import importlib
 
-    return replay_main(rest)
-
-
-def _cmd_up(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.up import main
-
-    return main(rest)
-
-
-def _cmd_target(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.target import main
-
-    return main(rest)
-
-
-def _cmd_eval(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.eval_cli import main
-
-    return main(rest)
-
-
-def _cmd_track(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.track import main
-
-    return main(rest)
-
-
-def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
-    from followbot.bench import main
-
-    return main(rest)
+    module, function, _ = PASSTHROUGH[args.command]
+    return getattr(importlib.import_module(module), function)(rest)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -183,64 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(fn=_cmd_schemas)
 
-    p = sub.add_parser(
-        "demo",
-        help="the whole system follows a person in the simulator (`followbot demo --help`)",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_demo, passthrough=True)
-
-    p = sub.add_parser(
-        "smoke",
-        help="transport smoke: synthetic sensors to a monitor over Zenoh",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_smoke, passthrough=True)
-
-    p = sub.add_parser(
-        "up",
-        help="start and supervise a deployment from a compose file (`followbot up --help`)",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_up, passthrough=True)
-
-    p = sub.add_parser(
-        "target",
-        help="acquire / reset / save / load the target model (`followbot target --help`)",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_target, passthrough=True)
-
-    p = sub.add_parser(
-        "eval",
-        help="scenarios x presets through the real pipeline: metrics, plots, report",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_eval, passthrough=True)
-
-    p = sub.add_parser(
-        "track",
-        help="run the pipeline over a recording; tracks to MCAP and CSV (`followbot track -h`)",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_track, passthrough=True)
-
-    p = sub.add_parser(
-        "record", help="record topics to MCAP (`followbot record --help`)", add_help=False
-    )
-    p.set_defaults(fn=_cmd_record, passthrough=True)
-
-    p = sub.add_parser(
-        "replay",
-        help="replay an MCAP file or a ROS 1/2 bag (`followbot replay --help`)",
-        add_help=False,
-    )
-    p.set_defaults(fn=_cmd_replay, passthrough=True)
-
-    p = sub.add_parser(
-        "bench", help="run the benchmarks (options: `followbot bench --help`)", add_help=False
-    )
-    p.set_defaults(fn=_cmd_bench, passthrough=True)
+    for name, (_, _, help_text) in PASSTHROUGH.items():
+        p = sub.add_parser(name, help=f"{help_text} (`followbot {name} --help`)", add_help=False)
+        p.set_defaults(fn=_cmd_passthrough, passthrough=True)
     return parser
 
 

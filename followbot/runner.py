@@ -54,6 +54,47 @@ class _Stamp:
     arrived: dict[str, int] = field(default_factory=dict)
 
 
+class StageProcesses:
+    """Services started as ``followbot run NAME --config FILE`` with their settings and logs
+    in one folder; :meth:`stop` ends them (SIGTERM, then SIGKILL after 10 s)."""
+
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = out_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+        self._logs: dict[str, Any] = {}
+        self._env = dict(os.environ, RUST_LOG="error", PYTHONUNBUFFERED="1")
+
+    def start(self, service: str, settings: dict[str, Any]) -> subprocess.Popen:
+        cfg = self.out_dir / f"{service}.settings.yaml"
+        cfg.write_text(yaml.safe_dump(settings, sort_keys=False))
+        self._logs[service] = (self.out_dir / f"{service}.log").open("w")
+        self.procs[service] = subprocess.Popen(
+            [sys.executable, "-m", "followbot", "run", service, "--config", str(cfg)],
+            stdout=self._logs[service], stderr=subprocess.STDOUT, env=self._env,
+        )  # fmt: skip
+        return self.procs[service]
+
+    def exited(self, services) -> str | None:
+        """The first of ``services`` that has exited, or None."""
+        return next((s for s in services if self.procs[s].poll() is not None), None)
+
+    def tail(self, service: str, n: int = 6) -> str:
+        return _tail(self.out_dir / f"{service}.log", n)
+
+    def stop(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.terminate()
+        for p in self.procs.values():
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        for fh in self._logs.values():
+            fh.close()
+
+
 def stage_settings(preset: str, lockstep: bool) -> dict[str, dict[str, Any]]:
     from followbot.services.runtime.compose import PRESETS
 
@@ -134,28 +175,19 @@ def run_scenario(
 
     for topic in RECORDED:
         node.subscribe(topic, on(topic), with_payload=True)
-    procs: dict[str, subprocess.Popen] = {}
-    logs = {}
-    env = dict(os.environ, RUST_LOG="error", PYTHONUNBUFFERED="1")
+    procs = StageProcesses(out_dir)
     t_wall0 = time.monotonic()
     try:
         for service in (*stages, "sim"):
-            cfg = out_dir / f"{service}.settings.yaml"
-            cfg.write_text(yaml.safe_dump({**common, **settings[service]}, sort_keys=False))
-            logs[service] = (out_dir / f"{service}.log").open("w")
-            procs[service] = subprocess.Popen(
-                [sys.executable, "-m", "followbot", "run", service, "--config", str(cfg)],
-                stdout=logs[service], stderr=subprocess.STDOUT, env=env,
-            )  # fmt: skip
+            procs.start(service, {**common, **settings[service]})
+        sim = procs.procs["sim"]
         last_shown = -1.0
         deadline = time.monotonic() + timeout_s
-        while procs["sim"].poll() is None:
-            for s in stages:
-                if procs[s].poll() is not None:
-                    raise RunError(
-                        f"{name} / {preset}: {s} exited {procs[s].returncode}: "
-                        + _tail(out_dir / f"{s}.log")
-                    )
+        while sim.poll() is None:
+            if (s := procs.exited(stages)) is not None:
+                raise RunError(
+                    f"{name} / {preset}: {s} exited {procs.procs[s].returncode}: " + procs.tail(s)
+                )
             if time.monotonic() > deadline:
                 raise RunError(f"{name} / {preset}: no end after {timeout_s:.0f} s")
             node.spin_once()
@@ -166,25 +198,12 @@ def run_scenario(
                     last_shown = sim_s
                     _bar(f"{name} / {preset}", sim_s, duration_s)
             time.sleep(0.05)
-        if procs["sim"].returncode != 0:
-            raise RunError(
-                f"{name} / {preset}: sim exited {procs['sim'].returncode}: "
-                + _tail(out_dir / "sim.log")
-            )
+        if sim.returncode != 0:
+            raise RunError(f"{name} / {preset}: sim exited {sim.returncode}: " + procs.tail("sim"))
         time.sleep(0.3)  # the last answers
     finally:
         wall_s = time.monotonic() - t_wall0
-        for p in procs.values():
-            if p.poll() is None:
-                p.terminate()
-        for p in procs.values():
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-        for fh in logs.values():
-            fh.close()
+        procs.stop()
         node.close()
         session.close()
         if writer is not None:

@@ -19,12 +19,9 @@ import argparse
 import csv
 import heapq
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
-
-import yaml
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,6 +88,7 @@ def _stage_settings(preset: str, stages: list[str], vision: bool, overrides: lis
 
 def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int:
     from followbot.mcapio import McapTopicWriter
+    from followbot.runner import StageProcesses
     from followbot.services.runtime.bus import ZenohBus
     from followbot.services.runtime.lockstep import LockstepBarrier
     from followbot.services.runtime.node import Node
@@ -124,23 +122,16 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     barrier = LockstepBarrier(node, stages)
     pubs = {t: node.publisher(t, reliable=True) for t in set(rec.mapping.values())}
     common = {"robot": robot, "zenoh": {"connect": [endpoint]}, "log_level": "warning"}
-    env = dict(os.environ, RUST_LOG="error")
-    procs, logs = {}, {}
+    procs = StageProcesses(out)
     scans = 0
     t0 = time.monotonic()
     tty = sys.stderr.isatty()
     try:
         for s in stages:
-            cfg = out / f"{s}.settings.yaml"
-            cfg.write_text(yaml.safe_dump({**common, **settings[s]}, sort_keys=False))
-            logs[s] = (out / f"{s}.log").open("w")
-            procs[s] = subprocess.Popen(
-                [sys.executable, "-m", "followbot", "run", s, "--config", str(cfg)],
-                stdout=logs[s], stderr=subprocess.STDOUT, env=env,
-            )  # fmt: skip
+            procs.start(s, {**common, **settings[s]})
         missing = barrier.wait_alive(60.0)
         if missing:
-            raise SystemExit(_fail(f"stages did not start: {missing}", out, missing))
+            raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
         time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
         last_shown = 0.0
         for topic, message in sensor_order(rec.messages()):
@@ -157,21 +148,12 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
                 sys.stderr.flush()
             if max_scans and scans >= max_scans:
                 break
-            for s, pr in procs.items():
-                if pr.poll() is not None:
-                    raise SystemExit(_fail(f"{s} exited {pr.returncode}", out, [s]))
+            if (s := procs.exited(stages)) is not None:
+                code = procs.procs[s].returncode
+                raise SystemExit(_fail(f"{s} exited {code}", procs, [s]))
         time.sleep(0.2)
     finally:
-        for pr in procs.values():
-            if pr.poll() is None:
-                pr.terminate()
-        for pr in procs.values():
-            try:
-                pr.wait(10)
-            except subprocess.TimeoutExpired:
-                pr.kill()
-        for fh in logs.values():
-            fh.close()
+        procs.stop()
         node.close()
         session.close()
         writer.close()
@@ -215,15 +197,9 @@ def sensor_order(messages, window: int = 64):
         yield t, m
 
 
-def _fail(why: str, out: Path, stages) -> int:
-    tails = []
-    for s in stages:
-        try:
-            tail = (out / f"{s}.log").read_text().strip().splitlines()[-3:]
-        except OSError:
-            tail = []
-        tails.append(f"{s}: {' | '.join(tail) or '(no output)'}")
-    print(f"followbot track: {why}; " + "; ".join(tails), file=sys.stderr)
+def _fail(why: str, procs, stages) -> int:
+    tails = "; ".join(f"{s}: {procs.tail(s, 3)}" for s in stages)
+    print(f"followbot track: {why}; {tails}", file=sys.stderr)
     return 1
 
 
