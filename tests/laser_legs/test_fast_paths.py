@@ -44,6 +44,10 @@ def reference_legs(s: ThesisSettings, scan: LaserScan, prediction=None) -> LegSe
     m = cluster_min(b.rp, c)
     keep &= (ra > m) & (rb > m)
     legs = LegSet.from_clusters(b, c.select(keep), w[keep])
+    if s.leg_centre_factor:  # from the surface to the centre, along the bearing
+        r = np.hypot(legs.x, legs.y)
+        push = 1 + s.leg_centre_factor * legs.width_m / r
+        legs = LegSet(legs.x * push, legs.y * push, legs.first, legs.last, legs.width_m)
     if prediction is not None:
         legs = legs.select(gate(legs, prediction, s.gate_m))
     return legs

@@ -38,6 +38,9 @@ def check(scan: LaserScan, result: PersonCandidates) -> None:
             x = r[span] * np.cos(ang[span])
             y = r[span] * np.sin(ang[span])
             tol = 1e-6 * max(1.0, float(np.max(np.abs(r[span]))))
+            # a detector may move a leg from its visible surface towards its centre, behind the
+            # beams, by at most half its width (thesis: leg_centre_factor * W = pi/8 W)
+            tol += 0.5 * leg.width_m
             # the leg lies among its beams: inside their bounding box
             assert x.min() - tol <= leg.x_m <= x.max() + tol
             assert y.min() - tol <= leg.y_m <= y.max() + tol

@@ -162,3 +162,22 @@ def test_float64_and_reversed_scans():
     r = ClusterLegDetector().detect(rev)
     assert len(r.candidates) == 1
     assert math.hypot(r.candidates[0].x_m - 1.5, r.candidates[0].y_m) < LEG_TOL_M
+
+
+@pytest.mark.parametrize("rng_m", [1.0, 1.5, 2.5])
+def test_legs_are_placed_at_their_centres_not_their_surfaces(rng_m):
+    """Beyond the thesis: its cluster 'middle' lies on the leg's surface, about pi R / 4 short
+    of the centre; the default corrects that, leg_centre_factor=0 keeps the thesis's position."""
+    legs = person_legs(rng_m, 0.0, separation_m=0.3, leg_radius_m=0.06)
+    scan = make_scan(legs, fov_rad=math.radians(180), increment_rad=math.radians(0.25))
+    centres = np.array([(x, y) for x, y, _ in legs])
+
+    def errors(detector):
+        found = detector.legs(scan)
+        assert len(found) == 2
+        got = np.stack([found.x, found.y], axis=1)
+        return [float(np.min(np.hypot(*(centres - g).T))) for g in got]
+
+    assert max(errors(ClusterLegDetector())) < 0.01
+    literal = errors(ClusterLegDetector(ThesisSettings(leg_centre_factor=0.0)))
+    assert min(literal) > 0.04  # the surface: ~pi R / 4 = 4.7 cm in front of the centre

@@ -84,6 +84,12 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     max_width_m: float = 0.300  # thesis 4.3.2 eq. 4-5: W < 300 mm
     gate_m: float = 0.400  # thesis 4.3.2 eq. 4-7: 400 mm (criterion 3)
     pair_distance_m: float = 0.500  # thesis 4.3.3: legs closer than 500 mm are one person
+    leg_centre_factor: float = math.pi / 8
+    """Beyond the thesis: the cluster's middle (4.3.3) lies on the leg's visible surface, not
+    at its centre. Beams evenly spread in angle hit a round leg of radius R evenly across its
+    width as seen from the laser, so their points average pi R / 4 in front of the centre; with
+    the end-to-end width W ~ 2R the leg is moved this factor times W further along its bearing
+    (default pi/8). 0 gives the thesis's literal position (~0.8 R, 5 cm, short)."""
     two_leg_confidence: float = 1.0  # not in the thesis: two legs are the surer pattern
     one_leg_confidence: float = 0.5  # not in the thesis
 
@@ -97,6 +103,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
         for name in ("cluster_jump_m", "ref_increment_rad", "ref_range_m", "gate_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
+        if not 0 <= self.leg_centre_factor <= 1:
+            raise ValueError("leg_centre_factor must be in [0, 1]")
         if not self.pair_distance_m >= 0:
             raise ValueError("pair_distance_m must be >= 0")
 
@@ -189,6 +197,11 @@ class ClusterLegDetector:
         xy /= cnt
         x, y = xy
         st, en, w = st[k], en[k], w[k]
+        if s.leg_centre_factor:
+            # from the visible surface to the leg's centre, along the bearing
+            r = np.hypot(x, y)
+            push = s.leg_centre_factor * w / np.maximum(r, 1e-9)
+            x, y = x * (1 + push), y * (1 + push)
         legs = LegSet(x, y, st, en, w)
         # criterion 3, eq. 4-7: near the tracker's prediction
         if prediction is not None:
