@@ -141,6 +141,14 @@ def replay_main(argv: list[str] | None = None) -> int:
         "--wait", type=float, default=5.0, metavar="S",
         help="wait up to S seconds for a subscriber before starting (5)",
     )  # fmt: skip
+    p.add_argument(
+        "--lockstep", action="store_true",
+        help="after each scan, wait for every running stage's answer to it (docs/runtime.md)",
+    )  # fmt: skip
+    p.add_argument(
+        "--timeout", type=float, default=5.0, metavar="S",
+        help="lock-step: seconds to wait for the stages' answers to one scan (5)",
+    )  # fmt: skip
     p.add_argument("--info", action="store_true", help="print what the file holds and exit")
     add_zenoh_arguments(p)
     args = p.parse_args(argv)
@@ -176,6 +184,15 @@ def _replay(rec, args: argparse.Namespace) -> int:
     with zenoh_node("replay", settings) as node:
         # every sample matters in a replay: block rather than drop under congestion
         pubs = {t: node.publisher(t, reliable=True) for t in set(rec.mapping.values())}
+        barrier = None
+        if args.lockstep:
+            from followbot.services.runtime.lockstep import STAGE_OUTPUT, LockstepBarrier
+
+            barrier = LockstepBarrier(node, list(STAGE_OUTPUT))
+            time.sleep(1.0)  # liveliness of the running stages arrives
+            running = barrier.alive()
+            print(f"  lock-step with: {', '.join(running) or 'no stage (nothing to wait for)'}",
+                  file=sys.stderr)  # fmt: skip
         if args.wait > 0:
             deadline = time.monotonic() + args.wait
             while not any(p.matching() for p in pubs.values()) and time.monotonic() < deadline:
@@ -202,6 +219,8 @@ def _replay(rec, args: argparse.Namespace) -> int:
                     break
                 pubs[topic].put(message)  # numbered afresh by the replay's publisher
                 sent += 1
+                if barrier is not None and topic == "sensors/scan":
+                    barrier.wait(message.stamp_ns, args.timeout)
                 now = time.monotonic()
                 if now - last_shown > 1.0:
                     last_shown = now
@@ -217,6 +236,9 @@ def _replay(rec, args: argparse.Namespace) -> int:
     print(f"replayed {sent} messages in {elapsed:.1f} s")
     for reason, n in rec.skipped.most_common():
         print(f"  skipped {n}: {reason}")
+    if barrier is not None and any(barrier.timeouts.values()):
+        late = {s: n for s, n in barrier.timeouts.items() if n}
+        print(f"  lock-step: scans a stage did not answer within {args.timeout:.0f} s: {late}")
     if error:
         print(f"followbot replay: {error}", file=sys.stderr)
         return 1

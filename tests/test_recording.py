@@ -188,3 +188,23 @@ def test_ros_scan_converts_with_its_geometry():
     scan = convert("sensor_msgs/msg/LaserScan", ros, t_ns=0)
     assert scan.frame_id == "laser" and scan.intensities is None
     np.testing.assert_allclose(scan.angles_rad(), [-1.0, -0.5, 0.0, 0.5, 1.0])
+
+
+@needs_data
+@pytest.mark.multiprocess
+def test_lockstep_replay_waits_for_every_scan_to_be_answered(spawn, endpoint, robot, zenoh_session):
+    from followbot.schemas import PersonCandidates
+
+    sub, got = _collect(zenoh_session, Keys(robot).topic("perception/candidates"))
+    legs = spawn("run", "laser_legs", "--connect", endpoint, "--robot", robot)
+    legs.wait_for_output("laser_legs up", timeout=20)
+    out = followbot("replay", str(DEMO_BAG), "--connect", endpoint, "--robot", robot,
+                    "--rate", "0", "--lockstep", timeout=180)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert "lock-step with: laser_legs" in out.stderr
+    assert "did not answer" not in out.stdout
+    time.sleep(0.3)
+    answers = [decode(PersonCandidates, p) for p in _drain(got)]
+    sub.undeclare()
+    scans = [m for _, t, m in open_recording(DEMO_BAG).messages() if t == "sensors/scan"]
+    assert [a.stamp_ns for a in answers] == [s.stamp_ns for s in scans]  # one each, in order
