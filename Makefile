@@ -40,7 +40,7 @@ demo: $(STAMP)
 
 # Long run: FOLLOWBOT_SOAK_S (default 60) seconds at FOLLOWBOT_SOAK_RATE (default 200) scans/s.
 soak: $(STAMP)
-	$(BIN)/python -m pytest -q -s -m soak --run-soak tests/test_soak.py $(ARGS)
+	$(BIN)/python -m pytest -q -s -m soak --run-soak --timeout=0 tests/test_soak.py $(ARGS)
 
 # Real pedestrian footage for the vision tests: Debian's opencv-doc (examples/data/vtest.avi),
 # unpacked once into a cache outside the clone. Needs apt-get (Debian/Ubuntu).
