@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import queue
 import signal
 import subprocess
 import sys
@@ -101,6 +102,35 @@ def spawn(tmp_path) -> Iterator:
     yield _spawn
     for p in procs:
         p.kill()
+
+
+class LivelinessWatch:
+    """Watches one liveliness key from a test's own Zenoh session (history included)."""
+
+    def __init__(self, session, key: str) -> None:
+        import zenoh
+
+        self.key = key
+        self.events: queue.SimpleQueue = queue.SimpleQueue()
+        self._sub = session.liveliness().declare_subscriber(
+            key,
+            lambda s: self.events.put("PUT" if s.kind == zenoh.SampleKind.PUT else "DELETE"),
+            history=True,
+        )
+
+    def expect(self, kind: str = "PUT", timeout: float = 10.0) -> None:
+        """Wait for the token to appear (PUT) or go (DELETE); fail after ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if self.events.get(timeout=max(0.0, deadline - time.monotonic())) == kind:
+                    return
+            except queue.Empty:
+                break
+        raise AssertionError(f"no liveliness {kind} of {self.key} within {timeout} s")
+
+    def undeclare(self) -> None:
+        self._sub.undeclare()
 
 
 @pytest.fixture

@@ -8,6 +8,7 @@ import signal
 import time
 
 import pytest
+from conftest import LivelinessWatch
 from examples import scan
 
 from followbot.schemas import Health, Keys, decode, encode
@@ -15,33 +16,10 @@ from followbot.schemas import Health, Keys, decode, encode
 pytestmark = pytest.mark.multiprocess
 
 
-def _alive_watcher(session, key):
-    events: queue.SimpleQueue = queue.SimpleQueue()
-    import zenoh
-
-    sub = session.liveliness().declare_subscriber(
-        key,
-        lambda s: events.put("PUT" if s.kind == zenoh.SampleKind.PUT else "DELETE"),
-        history=True,
-    )
-    return sub, events
-
-
-def _expect(events: queue.SimpleQueue, kind: str, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            if events.get(timeout=max(0.0, deadline - time.monotonic())) == kind:
-                return
-        except queue.Empty:
-            break
-    raise AssertionError(f"no liveliness {kind} within {timeout} s")
-
-
 def test_two_processes_exchange_scans(spawn, endpoint, robot, tmp_path, zenoh_session):
     summary = tmp_path / "monitor.json"
     keys = Keys(robot)
-    sub, events = _alive_watcher(zenoh_session, keys.alive("monitor"))
+    sub = LivelinessWatch(zenoh_session, keys.alive("monitor"))
     monitor = spawn(
         "run",
         "monitor",
@@ -56,7 +34,7 @@ def test_two_processes_exchange_scans(spawn, endpoint, robot, tmp_path, zenoh_se
         "--set",
         "report_period_s=0.2",
     )
-    _expect(events, "PUT", timeout=10)
+    sub.expect("PUT", timeout=10)
     synthetic = spawn(
         "run",
         "synthetic",
@@ -91,7 +69,7 @@ def test_a_running_node_rejects_bad_payloads_and_keeps_good_ones(
     hsub = zenoh_session.declare_subscriber(
         keys.health("monitor"), lambda s: healths.put(decode(Health, s.payload.to_bytes()))
     )
-    sub, events = _alive_watcher(zenoh_session, keys.alive("monitor"))
+    sub = LivelinessWatch(zenoh_session, keys.alive("monitor"))
     monitor = spawn(
         "run",
         "monitor",
@@ -102,7 +80,7 @@ def test_a_running_node_rejects_bad_payloads_and_keeps_good_ones(
         "--set",
         "health_period_s=0.2",
     )
-    _expect(events, "PUT", timeout=10)
+    sub.expect("PUT", timeout=10)
     pub = zenoh_session.declare_publisher(keys.topic("sensors/scan"))
     deadline = time.monotonic() + 10
     while not pub.matching_status.matching and time.monotonic() < deadline:
@@ -132,9 +110,9 @@ def test_a_running_node_rejects_bad_payloads_and_keeps_good_ones(
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_node_exits_0_within_2_s_of_a_signal(spawn, endpoint, robot, zenoh_session, sig):
     keys = Keys(robot)
-    sub, events = _alive_watcher(zenoh_session, keys.alive("synthetic"))
+    sub = LivelinessWatch(zenoh_session, keys.alive("synthetic"))
     proc = spawn("run", "synthetic", "--robot", robot, "--connect", endpoint)
-    _expect(events, "PUT", timeout=10)
+    sub.expect("PUT", timeout=10)
     t0 = time.monotonic()
     proc.signal(sig)
     code = proc.wait(5)
@@ -144,7 +122,7 @@ def test_node_exits_0_within_2_s_of_a_signal(spawn, endpoint, robot, zenoh_sessi
     assert "Traceback" not in proc.output
     assert "Warning" not in proc.output and "WARNING" not in proc.output
     # and its liveliness token is gone with it
-    _expect(events, "DELETE", timeout=5)
+    sub.expect("DELETE", timeout=5)
     sub.undeclare()
 
 

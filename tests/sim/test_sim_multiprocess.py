@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import json
-import queue
 import signal
 import threading
 import time
 from collections import defaultdict
 
 import pytest
-import zenoh
+from conftest import LivelinessWatch
 
 from followbot.schemas import GroundTruth, Keys, LaserScan, decode, encode
 
@@ -20,21 +19,11 @@ pytestmark = pytest.mark.multiprocess
 
 
 def _wait_alive(session, key: str, timeout: float = 10.0) -> None:
-    events: queue.SimpleQueue = queue.SimpleQueue()
-    sub = session.liveliness().declare_subscriber(
-        key, lambda s: events.put(s.kind == zenoh.SampleKind.PUT), history=True
-    )
+    watch = LivelinessWatch(session, key)
     try:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                if events.get(timeout=max(0.0, deadline - time.monotonic())):
-                    return
-            except queue.Empty:
-                break
-        raise AssertionError(f"{key} not alive within {timeout} s")
+        watch.expect("PUT", timeout)
     finally:
-        sub.undeclare()
+        watch.undeclare()
 
 
 def test_sim_streams_a_scenario_to_a_monitor_and_exits_0(

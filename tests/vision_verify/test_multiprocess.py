@@ -8,6 +8,7 @@ import signal
 import time
 
 import pytest
+from conftest import LivelinessWatch
 
 from followbot.schemas import Health, Image, Keys, PersonCandidates, Verification, decode, encode
 from followbot.services.vision_verify.model import build_model
@@ -20,8 +21,6 @@ pytestmark = pytest.mark.multiprocess
 
 
 def test_vision_verify_process_recovers_model_and_judges(spawn, endpoint, robot, zenoh_session):
-    import zenoh
-
     keys = Keys(robot)
     camera, acq, _ = acquired_scene()
     model = build_model(HistogramVerifier(), camera, acq, 9).to_message()
@@ -31,12 +30,7 @@ def test_vision_verify_process_recovers_model_and_judges(spawn, endpoint, robot,
         keys.topic("perception/target_model"),
         lambda q: q.reply(keys.topic("perception/target_model"), model_payload),
     )
-    alive: queue.SimpleQueue = queue.SimpleQueue()
-    live = zenoh_session.liveliness().declare_subscriber(
-        keys.alive("vision_verify"),
-        lambda s: alive.put(s.kind == zenoh.SampleKind.PUT),
-        history=True,
-    )
+    live = LivelinessWatch(zenoh_session, keys.alive("vision_verify"))
     got: queue.SimpleQueue = queue.SimpleQueue()
     vsub = zenoh_session.declare_subscriber(
         keys.topic("perception/verification"),
@@ -57,7 +51,7 @@ def test_vision_verify_process_recovers_model_and_judges(spawn, endpoint, robot,
         "health_period_s=0.2",
     )
     try:
-        assert alive.get(timeout=15) is True
+        live.expect("PUT", timeout=15)
         img_pub = zenoh_session.declare_publisher(keys.topic("sensors/image"))
         cand_pub = zenoh_session.declare_publisher(keys.topic("perception/candidates"))
         px, pan, cands, truth = crossing_frame()
