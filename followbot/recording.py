@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+from followbot import progress
+
 __all__ = ["record_main", "replay_main"]
 
 
@@ -27,11 +29,6 @@ def _node_settings(args: argparse.Namespace):
     from followbot.services.runtime.settings import NodeSettings, load_settings
 
     return load_settings(NodeSettings, None, [*overrides_from_args(args), "log_level=warning"])
-
-
-def _progress(tty: bool, text: str) -> None:
-    sys.stderr.write(("\r" if tty else "") + text + ("" if tty else "\n"))
-    sys.stderr.flush()
 
 
 # ----------------------------------------------------------------------------- record
@@ -75,7 +72,6 @@ def _record(topics: list[str], output: Path, duration: float | None, settings) -
     from followbot.mcapio import McapTopicWriter
     from followbot.services.runtime.node import zenoh_node
 
-    tty = sys.stderr.isatty()
     with zenoh_node("record", settings) as node:
         out = McapTopicWriter(output, settings.robot)
         try:
@@ -90,7 +86,7 @@ def _record(topics: list[str], output: Path, duration: float | None, settings) -
             def show() -> None:
                 total = sum(out.counts.values())
                 size = out.size_bytes() / 2**20
-                _progress(tty, f"  recording {time.monotonic() - t0:6.1f} s  {total} messages  "
+                progress.show(f"  recording {time.monotonic() - t0:6.1f} s  {total} messages  "
                                f"{size:.1f} MiB")  # fmt: skip
 
             node.every(1.0, show, name="progress")
@@ -100,8 +96,7 @@ def _record(topics: list[str], output: Path, duration: float | None, settings) -
             node.close()  # no more callbacks before the file is finished
         finally:
             out.close()
-    if tty:
-        sys.stderr.write("\n")
+    progress.finish()
     elapsed = time.monotonic() - t0
     print(f"wrote {output} ({output.stat().st_size / 2**20:.2f} MiB, {elapsed:.1f} s)")
     for t in topics:
@@ -180,7 +175,6 @@ def _replay(rec, args: argparse.Namespace) -> int:
     settings = _node_settings(args)
     total = sum(n for src, (_, n) in rec.contents.items() if src in rec.mapping)
     sent = 0
-    tty = sys.stderr.isatty()
     with zenoh_node("replay", settings) as node:
         # every sample matters in a replay: block rather than drop under congestion
         pubs = {t: node.publisher(t, reliable=True) for t in set(rec.mapping.values())}
@@ -224,14 +218,13 @@ def _replay(rec, args: argparse.Namespace) -> int:
                 now = time.monotonic()
                 if now - last_shown > 1.0:
                     last_shown = now
-                    _progress(tty, f"  replayed {sent}/{total} messages")
+                    progress.show(f"  replayed {sent}/{total} messages")
         except RecordingError as exc:
             error = str(exc)
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-    if tty:
-        sys.stderr.write("\n")
+    progress.finish()
     elapsed = time.monotonic() - t_wall0
     print(f"replayed {sent} messages in {elapsed:.1f} s")
     for reason, n in rec.skipped.most_common():

@@ -19,6 +19,7 @@ from typing import Any
 
 import yaml
 
+from followbot import progress as progress_line
 from followbot.schemas import (
     GroundTruth,
     People,
@@ -196,7 +197,9 @@ def run_scenario(
                 sim_s = done / 1e9
                 if sim_s - last_shown >= 1.0:
                     last_shown = sim_s
-                    _bar(f"{name} / {preset}", sim_s, duration_s)
+                    progress_line.show(
+                        f"  {name + ' / ' + preset:<40} {progress_line.bar(sim_s, duration_s)}"
+                    )
             time.sleep(0.05)
         if sim.returncode != 0:
             raise RunError(f"{name} / {preset}: sim exited {sim.returncode}: " + procs.tail("sim"))
@@ -209,7 +212,10 @@ def run_scenario(
         if writer is not None:
             writer.close()
     if progress:
-        _bar(f"{name} / {preset}", duration_s, duration_s, end=True)
+        progress_line.show(
+            f"  {name + ' / ' + preset:<40} {progress_line.bar(duration_s, duration_s)}"
+        )
+        progress_line.finish()
 
     records, timeouts = [], dict.fromkeys(stages, 0)
     for stamp in sorted(stamps):
@@ -254,16 +260,3 @@ def _tail(path: Path, n: int = 6) -> str:
     except OSError:
         return "(no log)"
     return " | ".join(lines[-n:]) or "(empty log)"
-
-
-def _bar(label: str, done: float, total: float, end: bool = False) -> None:
-    width = 30
-    frac = min(max(done / total, 0.0), 1.0) if total else 1.0
-    bar = "#" * int(frac * width) + "." * (width - int(frac * width))
-    tty = sys.stderr.isatty()
-    text = f"  {label:<40} [{bar}] {done:5.1f}/{total:.0f} s"
-    if tty:
-        sys.stderr.write("\r" + text + ("\n" if end else ""))
-    else:
-        sys.stderr.write(text + "\n")
-    sys.stderr.flush()

@@ -19,15 +19,10 @@ import sys
 import time
 from pathlib import Path
 
+from followbot import progress
 from followbot.schemas import Health, decode
 
 SERVICES = ("synthetic", "monitor")
-
-
-def _bar(done: float, total: float, width: int = 30) -> str:
-    frac = min(max(done / total, 0.0), 1.0)
-    n = int(frac * width)
-    return f"[{'#' * n}{'.' * (width - n)}] {done:4.1f}/{total:.0f} s"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     endpoint = free_loopback_endpoint()
-    robot = f"demo{os.getpid()}"
+    robot = f"smoke{os.getpid()}"
     summary_file = out / "monitor.json"
     summary_file.unlink(missing_ok=True)
     common = ["--robot", robot, "--set", "health_period_s=0.5"]
@@ -94,22 +89,19 @@ def main(argv: list[str] | None = None) -> int:
                     return 1
                 time.sleep(0.05)
             t0 = time.monotonic()
-            tty = sys.stderr.isatty()
             shown = -1
             while (elapsed := time.monotonic() - t0) < args.duration:
                 dead = [n for n, pr in procs.items() if pr.poll() is not None]
                 if dead:
                     print(f"\n{dead[0]} exited early; see {out / (dead[0] + '.log')}")
                     return 1
-                if tty:
-                    sys.stderr.write("\r  streaming " + _bar(elapsed, args.duration))
-                elif int(elapsed) != shown:  # a line a second in logs, not a carriage-return storm
+                # every 0.1 s on a terminal; in logs a line a second, not a line storm
+                if progress.on_terminal() or int(elapsed) != shown:
                     shown = int(elapsed)
-                    sys.stderr.write("  streaming " + _bar(elapsed, args.duration) + "\n")
-                sys.stderr.flush()
+                    progress.show("  streaming " + progress.bar(elapsed, args.duration))
                 time.sleep(0.1)
-            end = "\r" if tty else ""
-            sys.stderr.write(end + "  streaming " + _bar(args.duration, args.duration) + "\n")
+            progress.show("  streaming " + progress.bar(args.duration, args.duration))
+            progress.finish()
             for name in ("synthetic", "monitor"):  # stop the source first, then the sink
                 procs[name].terminate()
                 procs[name].wait(10)

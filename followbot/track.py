@@ -23,6 +23,8 @@ import sys
 import time
 from pathlib import Path
 
+from followbot import progress
+
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.bags import RecordingError, open_recording
@@ -125,7 +127,6 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     procs = StageProcesses(out)
     scans = 0
     t0 = time.monotonic()
-    tty = sys.stderr.isatty()
     try:
         for s in stages:
             procs.start(s, {**common, **settings[s]})
@@ -143,9 +144,7 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             now = time.monotonic()
             if now - last_shown > 0.5 or scans == total:
                 last_shown = now
-                text = f"  tracking {scans}/{total} scans"
-                sys.stderr.write(("\r" + text) if tty else (text + "\n"))
-                sys.stderr.flush()
+                progress.show(f"  tracking {scans}/{total} scans")
             if max_scans and scans >= max_scans:
                 break
             if (s := procs.exited(stages)) is not None:
@@ -157,8 +156,7 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
         node.close()
         session.close()
         writer.close()
-    if tty:
-        sys.stderr.write("\n")
+    progress.finish()
     header = ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps"]
     for name, rows in (("people.csv", people_rows), ("target.csv", target_rows)):
         with (out / name).open("w", newline="") as f:
