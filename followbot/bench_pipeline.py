@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
 import sys
 import time
 
@@ -139,30 +138,14 @@ class Pipeline:
             self.node.watch_alive(
                 s, lambda up, s=s: (self.alive.add if up else self.alive.discard)(s)
             )
-        env = dict(os.environ, RUST_LOG="error")
+        from followbot.runner import StageProcesses
+
         log_dir.mkdir(parents=True, exist_ok=True)
-        self.logs = [(log_dir / f"{s}.log").open("w") for s in self.SERVICES]
-        self.procs = [
-            subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "followbot",
-                    "run",
-                    s,
-                    "--connect",
-                    self.endpoint,
-                    "--robot",
-                    self.robot,
-                    "--set",
-                    "log_level=warning",
-                ],
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                env=env,
-            )
-            for s, log in zip(self.SERVICES, self.logs, strict=True)
-        ]
+        self.stages = StageProcesses(log_dir)
+        settings = {"robot": self.robot, "zenoh": {"connect": [self.endpoint]},
+                    "log_level": "warning"}  # fmt: skip
+        for s in self.SERVICES:
+            self.stages.start(s, settings)
 
     def _on_cmd(self, cmd) -> None:
         self.arrivals.setdefault(cmd.stamp_ns, time.monotonic_ns())
@@ -210,15 +193,7 @@ class Pipeline:
         return [(self.arrivals[s] - s) / 1e6 for s in stamps if s in self.arrivals]
 
     def close(self) -> None:
-        for p in self.procs:
-            p.terminate()
-        for p in self.procs:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-        for log in self.logs:
-            log.close()
+        self.stages.stop()
         self.node.close()
         self.session.close()
 
