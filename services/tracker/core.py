@@ -268,6 +268,8 @@ class Tracker:
     def __init__(self, settings: TrackerSettings | None = None) -> None:
         self.settings = s = settings or TrackerSettings()
         self._make = estimator_factory(s.estimator, s.estimator_settings)
+        # optional batch steps of the estimator class (ParticleEstimator.motion_all, ...)
+        self._cls = self._make.estimator_class
         self.estimator_name = s.estimator
         self.odometry = OdometryBuffer(
             max_extrapolation_ns=int(s.max_odometry_extrapolation_s * _NS)
@@ -335,10 +337,9 @@ class Tracker:
 
         # 1. ego-motion
         pose = self.odometry.pose_at(stamp)
+        rotation = translation = None
         if pose is not None and self._last_pose is not None:
             rotation, translation = se2_change(self._last_pose, pose)
-            for t in self.tracks.values():
-                t.estimator.ego_motion(rotation, translation)
             if self._lost_at is not None:
                 self._lost_at = rotation @ self._lost_at + translation
             sources.append("odometry")
@@ -348,9 +349,15 @@ class Tracker:
         self._last_pose = pose
         self._last_stamp = stamp
 
-        # 2. predict
-        for t in self.tracks.values():
-            t.estimator.predict(dt, t.misses)
+        # 2. predict (after the ego-motion): all tracks in one batch where the estimator can
+        motion_all = getattr(self._cls, "motion_all", None)
+        if motion_all is not None and len(self.tracks) > 1:
+            motion_all([t.estimator for t in self.tracks.values()], rotation, translation, dt)
+        else:
+            for t in self.tracks.values():
+                if rotation is not None:
+                    t.estimator.ego_motion(rotation, translation)
+                t.estimator.predict(dt, t.misses)
 
         # 3. late vision, as of the scans it names
         self._vision_sources = False
@@ -364,11 +371,16 @@ class Tracker:
         ids = list(self.tracks)
         matched: dict[int, int] = {}  # track id -> candidate index
         if ids and len(z):
-            cost = np.empty((len(ids), len(z)))
-            for r, tid in enumerate(ids):
-                t = self.tracks[tid]
-                d = t.estimator.distance(z, t.misses)
-                cost[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
+            cost_all = getattr(self._cls, "cost_all", None)
+            if cost_all is not None and len(ids) > 1:
+                ts = [self.tracks[tid] for tid in ids]
+                cost = cost_all([t.estimator for t in ts], z, [t.misses for t in ts])
+            else:
+                cost = np.empty((len(ids), len(z)))
+                for r, tid in enumerate(ids):
+                    t = self.tracks[tid]
+                    d = t.estimator.distance(z, t.misses)
+                    cost[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
             finite = np.isfinite(cost)
             if finite.any():
                 big = 1e6 + 2.0 * float(cost[finite].max(initial=0.0))
@@ -378,10 +390,16 @@ class Tracker:
                         matched[ids[r]] = c
 
         # 5. update, count misses, start and delete tracks
+        updated = [self.tracks[tid] for tid in ids if tid in matched]
+        update_all = getattr(self._cls, "update_all", None)
+        if update_all is not None and len(updated) > 1:
+            update_all([t.estimator for t in updated], z[[matched[t.id] for t in updated]])
+        else:
+            for t in updated:
+                t.estimator.update(z[matched[t.id]])
         for tid in ids:
             t = self.tracks[tid]
             if tid in matched:
-                t.estimator.update(z[matched[tid]])
                 t.misses = 0
                 t.hits += 1
                 t.last_seen_ns = stamp
@@ -578,7 +596,7 @@ class Tracker:
                 y_m=float(m[1]),
                 vx_mps=float(m[2]),
                 vy_mps=float(m[3]),
-                covariance=[float(c) for c in cov.reshape(-1)],
+                covariance=cov.reshape(-1).tolist(),
                 misses=t.misses,
                 sources=sources,
                 flags=flags,
@@ -610,7 +628,7 @@ class Tracker:
                     y_m=float(m[1]),
                     vx_mps=float(m[2]),
                     vy_mps=float(m[3]),
-                    covariance=[float(c) for c in t.estimator.covariance.reshape(-1)],
+                    covariance=t.estimator.covariance.reshape(-1).tolist(),
                     misses=t.misses,
                     age_s=max(0.0, (stamp - t.born_ns) / _NS),
                     confidence=1.0 - t.misses / (s.max_misses + 1),

@@ -168,6 +168,47 @@ def test_particle_ego_motion_rotates_velocities_too():
     assert np.allclose(pf.particles[2:4], [[0.0], [-1.0]], atol=1e-12)
 
 
+@pytest.mark.parametrize("resampler", ["systematic", "sorted_copy"])
+@pytest.mark.parametrize("velocity_model", ["random_walk", "constant_velocity"])
+def test_particle_batch_steps_match_the_per_track_steps(resampler, velocity_model):
+    """motion_all / cost_all / update_all (ten people in one stack) give each track what its
+    own ego_motion / predict / distance / update would, up to rounding."""
+    s = ParticleSettings(resampler=resampler, velocity_model=velocity_model, particles=97)
+    starts = [(1.0 + 0.3 * i, -1.5 + 0.35 * i) for i in range(10)]
+    one = [
+        ParticleEstimator(x, y, s, np.random.default_rng([7, i])) for i, (x, y) in enumerate(starts)
+    ]
+    many = [
+        ParticleEstimator(x, y, s, np.random.default_rng([7, i])) for i, (x, y) in enumerate(starts)
+    ]
+    rot, trans = se2_change((0.0, 0.0, 0.0), (0.04, 0.01, 0.03))
+    z_rng = np.random.default_rng(3)
+    for step in range(15):
+        r = None if step % 4 == 3 else rot  # some steps without odometry
+        for e in one:
+            if r is not None:
+                e.ego_motion(r, trans)
+            e.predict(0.1)
+        ParticleEstimator.motion_all(many, r, trans, 0.1)
+        z = np.array([e.mean[:2] for e in one]) + z_rng.normal(0, 0.05, (10, 2))
+        z[step % 10] = [30.0, -40.0]  # one far measurement: its weights all underflow
+        misses = [step % 3] * 10
+        gated = [np.where(e.distance(z, k) <= e.gate(k), e.distance(z, k), np.inf)
+                 for e, k in zip(one, misses, strict=True)]  # fmt: skip
+        batch = ParticleEstimator.cost_all(many, z, misses)
+        assert np.allclose(np.array(gated), batch, rtol=0, atol=1e-9)
+        assert np.array_equal(np.isinf(np.array(gated)), np.isinf(batch))
+        upd = [i for i in range(10) if i != step % 5]  # a track without a match this step
+        for i in upd:
+            one[i].update(z[i])
+        ParticleEstimator.update_all([many[i] for i in upd], z[upd])
+        for a, b in zip(one, many, strict=True):
+            assert np.allclose(a.particles, b.particles, rtol=0, atol=1e-9)
+            assert np.allclose(a.mean, b.mean, rtol=0, atol=1e-9)
+            assert np.allclose(a.covariance, b.covariance, rtol=0, atol=1e-9)
+            assert np.all(np.isfinite(b.particles))
+
+
 @pytest.mark.parametrize("name", sorted(set(registry.names()) | {"particle", "ukf"}))
 def test_every_estimator_follows_a_walker_at_0_6_mps(name):
     make = estimator_factory(name)

@@ -75,4 +75,5 @@ def estimator_factory(name: str = "particle", settings: Any = None) -> Estimator
         return cls(x_m, y_m, s, rng)
 
     make.estimator_name = name  # type: ignore[attr-defined]
+    make.estimator_class = cls  # type: ignore[attr-defined]
     return make
