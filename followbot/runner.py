@@ -96,7 +96,12 @@ class StageProcesses:
             fh.close()
 
 
-def stage_settings(preset: str, lockstep: bool) -> dict[str, dict[str, Any]]:
+def stage_settings(
+    preset: str, lockstep: bool, *, odometry: bool = True, vision: bool = True
+) -> dict[str, dict[str, Any]]:
+    """Each stage's settings for ``preset``; ``lockstep``: as docs/runtime.md "Lock-step runs"
+    needs them, for a source that sends odometry (``odometry``) and with vision_verify
+    running (``vision``)."""
     from followbot.services.runtime.compose import PRESETS
 
     if preset not in PRESETS:
@@ -106,8 +111,17 @@ def stage_settings(preset: str, lockstep: bool) -> dict[str, dict[str, Any]]:
     out["vision_verify"]["auto_acquire"] = True
     if lockstep:
         out["vision_verify"]["answer_every_scan"] = True  # rule 2 of the lock-step protocol
-        # criterion 3 gates scan k+1 on the target of scan k: wait for it, deterministically
+        # rule 5: what a step combines reaches the stage over other links; wait for it
+        # criterion 3 gates scan k+1 on the target of scan k
         out["laser_legs"]["lockstep_target_wait_s"] = 0.5
+        if odometry:
+            out["laser_legs"]["lockstep_odometry_wait_s"] = 0.5
+            out["tracker"]["lockstep_odometry_wait_s"] = 0.5
+        if vision:
+            out["tracker"]["lockstep_vision_wait_s"] = 1.0
+        # the wall-clock watchdog would brake the controller's own state between scans on a
+        # slow machine (the sim ignores its commands, but the next command starts from them)
+        out["controller"]["stale_after_s"] = 0.0
     return out
 
 
@@ -140,7 +154,7 @@ def run_scenario(
     robot = f"eval{os.getpid()}x{int(time.monotonic() * 1000) % 100000}"
     lockstep = not realtime
     stages = [s for s in STAGES if vision or s != "vision_verify"]
-    settings = stage_settings(preset, lockstep)
+    settings = stage_settings(preset, lockstep, vision=vision)
     if not vision:  # laser only: the target is the nearest person ahead (as followbot track)
         settings["tracker"]["acquire"] = "nearest"
     settings["sim"] = {
@@ -204,6 +218,7 @@ def run_scenario(
         if sim.returncode != 0:
             raise RunError(f"{name} / {preset}: sim exited {sim.returncode}: " + procs.tail("sim"))
         time.sleep(0.3)  # the last answers
+        node.spin_once()  # and those that came while a handler ran (queued for the loop)
     finally:
         wall_s = time.monotonic() - t_wall0
         procs.stop()

@@ -21,6 +21,7 @@ import heapq
 import os
 import sys
 import time
+from collections import deque
 from pathlib import Path
 
 from followbot import progress
@@ -59,7 +60,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rec.mapping = {src: dst for src, dst in rec.mapping.items() if src in remaps}
     stages = ["laser_legs", "tracker"] + (["vision_verify"] if args.image_topic else [])
-    settings = _stage_settings(args.preset, stages, bool(args.image_topic), args.set)
+    settings = _stage_settings(
+        args.preset, stages, bool(args.image_topic), args.set, odometry=bool(args.odom_topic)
+    )
     if isinstance(settings, str):
         print(f"followbot track: {settings}", file=sys.stderr)
         return 2
@@ -70,11 +73,14 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
-def _stage_settings(preset: str, stages: list[str], vision: bool, overrides: list[str]):
+def _stage_settings(
+    preset: str, stages: list[str], vision: bool, overrides: list[str], *, odometry: bool
+):
     from followbot.runner import stage_settings
     from followbot.services.runtime.settings import SettingsError, apply_overrides
 
-    settings = {s: v for s, v in stage_settings(preset, lockstep=True).items() if s in stages}
+    all_settings = stage_settings(preset, lockstep=True, odometry=odometry, vision=vision)
+    settings = {s: v for s, v in all_settings.items() if s in stages}
     if not vision:
         settings["tracker"]["acquire"] = "nearest"
     for item in overrides:
@@ -135,7 +141,10 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
         time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
         last_shown = 0.0
-        for topic, message in sensor_order(rec.messages()):
+        messages = sensor_order(rec.messages())
+        if "sensors/odom" in pubs:
+            messages = odometry_ahead(messages)
+        for topic, message in messages:
             pubs[topic].put(message)
             if topic != "sensors/scan":
                 continue
@@ -150,7 +159,8 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             if (s := procs.exited(stages)) is not None:
                 code = procs.procs[s].returncode
                 raise SystemExit(_fail(f"{s} exited {code}", procs, [s]))
-        time.sleep(0.2)
+        time.sleep(0.2)  # the last tracking/people
+        node.spin_once()  # with what came while a handler ran (queued for the loop)
     finally:
         procs.stop()
         node.close()
@@ -193,6 +203,39 @@ def sensor_order(messages, window: int = 64):
     while heap:
         *_, t, m = heapq.heappop(heap)
         yield t, m
+
+
+def odometry_ahead(messages, horizon_ns: int = 1_000_000_000):
+    """Hold each scan back until an odometry message stamped at or after it has gone out.
+
+    The stages, in lock-step, wait for such odometry before they use a scan (docs/runtime.md,
+    rule 5), so a scan is only sent after it: the odometry poses at the scan's instant are
+    then interpolated, never extrapolated. A scan waits at most until the recording is
+    ``horizon_ns`` past it (odometry that stopped); what came after it waits with it. In a
+    followbot simulator recording the odometry already has the scan's stamp: nothing moves.
+    """
+    pending: deque = deque()
+    newest = -1
+
+    def due(now_ns: int) -> bool:
+        topic, message = pending[0]
+        return (
+            topic != "sensors/scan"
+            or message.stamp_ns <= newest
+            or now_ns - message.stamp_ns > horizon_ns
+        )
+
+    for topic, message in messages:
+        while pending and due(message.stamp_ns):  # held scans now past the horizon
+            yield pending.popleft()
+        if topic == "sensors/odom":
+            newest = max(newest, message.stamp_ns)
+            yield topic, message
+        else:
+            pending.append((topic, message))
+        while pending and due(message.stamp_ns):
+            yield pending.popleft()
+    yield from pending
 
 
 def _fail(why: str, procs, stages) -> int:

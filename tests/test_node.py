@@ -180,3 +180,28 @@ def test_on_stop_runs_once_after_the_loop(net):
 )
 def test_fake_key_matching_follows_zenoh(expr, key, match):
     assert key_matches(expr, key) is match
+
+
+def test_lockstep_barrier_sees_an_answer_that_came_while_the_node_was_busy(net):
+    """Nobody runs the source's node loop while it waits: an answer queued for that loop
+    (because another handler held the node) must still end the wait, not its timeout."""
+    from followbot.schemas import TrackState
+    from followbot.services.runtime.lockstep import LockstepBarrier
+
+    source = make_node(net, "source")
+    barrier = LockstepBarrier(source, ["tracker"])
+    tracker = make_node(net, "tracker")
+    tracker.announce()
+    assert barrier.wait_alive(5.0) == []
+    answer = encode(TrackState(stamp_ns=7, status="initialising"))
+
+    def answer_while_busy() -> None:
+        time.sleep(0.2)  # while the source waits
+        with source._lock:  # a handler of the source is running
+            net.put(KEYS.topic("tracking/target"), answer)  # so this one is queued
+
+    t = threading.Thread(target=answer_while_busy)
+    t.start()
+    missing = barrier.wait(7, timeout_s=30.0)
+    t.join()
+    assert missing == [] and barrier.timeouts == {}

@@ -1,25 +1,34 @@
-"""followbot track: a real recording through the real pipeline, deterministically."""
+"""followbot track: a real recording through the real pipeline, deterministically; and the
+round trip sim -> record -> track giving the tracks of the live run."""
 
 from __future__ import annotations
 
 import csv
 import subprocess
 import sys
+from importlib import resources
 
+import msgspec
+import numpy as np
 import pytest
+import yaml
 from conftest import SHARED_DATA
 
+from followbot.bags import open_recording
+
+MS = 1_000_000
+
 DEMO_BAG = SHARED_DATA / "leg_tracker" / "demo_stationary_simple_environment.bag"
-pytestmark = [
-    pytest.mark.multiprocess,
-    pytest.mark.skipif(not DEMO_BAG.is_file(), reason=f"leg_tracker data absent at {DEMO_BAG}"),
-]
+needs_data = pytest.mark.skipif(
+    not DEMO_BAG.is_file(), reason=f"leg_tracker data absent at {DEMO_BAG}"
+)
 
 
-def track(out, *extra):
+def track(out, *extra, recording=DEMO_BAG, scan_topic="/scan", max_scans=250):
+    limit = ["--max-scans", str(max_scans)] if max_scans else []
     return subprocess.run(
-        [sys.executable, "-m", "followbot", "track", str(DEMO_BAG), "--scan-topic", "/scan",
-         "--output", str(out), "--max-scans", "250", *extra],
+        [sys.executable, "-m", "followbot", "track", str(recording), "--scan-topic", scan_topic,
+         "--output", str(out), *limit, *extra],
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
 
@@ -29,6 +38,8 @@ def rows(path):
         return list(csv.reader(f))
 
 
+@needs_data
+@pytest.mark.multiprocess
 def test_a_ros1_bag_is_tracked_end_to_end_and_deterministically(tmp_path):
     a, b = track(tmp_path / "a"), track(tmp_path / "b")
     assert a.returncode == 0, a.stderr
@@ -46,8 +57,100 @@ def test_a_ros1_bag_is_tracked_end_to_end_and_deterministically(tmp_path):
     assert (tmp_path / "a" / "tracks.mcap").stat().st_size > 10_000
 
 
+@needs_data
+@pytest.mark.multiprocess
 def test_missing_topics_and_bad_settings_are_clear_errors(tmp_path):
     out = track(tmp_path, "--odom-topic", "/odom")
     assert out.returncode == 2 and "no topic ['/odom']" in out.stderr
     out = track(tmp_path, "--set", "nope.detector=x")
     assert out.returncode == 2 and "SERVICE.KEY=VALUE" in out.stderr
+
+
+def outputs(path, topics=("tracking/target", "tracking/people")):
+    """(topic, stamp) -> the message on one of ``topics``, ``seq`` left out."""
+    out = {}
+    for _, topic, m in open_recording(path).messages():
+        if topic in topics:
+            assert (topic, m.stamp_ns) not in out, f"two {topic} for stamp {m.stamp_ns}"
+            out[topic, m.stamp_ns] = {**msgspec.to_builtins(m), "seq": None}
+    return out
+
+
+def first_difference(a, b):
+    assert a.keys() == b.keys()
+    differ = sorted((k for k in a if a[k] != b[k]), key=lambda k: (k[1], k[0]))
+    return f"{len(differ)} differ, first {differ[0]}: {a[differ[0]]} != {b[differ[0]]}"
+
+
+@pytest.mark.multiprocess
+def test_lockstep_runs_and_the_track_of_their_recording_give_the_same_tracks(tmp_path):
+    """sim -> record -> track: every stage its own process each time, the same tracks to the
+    last bit; and two live runs alike, commands included (docs/recording.md, "Round trip")."""
+    from followbot.runner import run_scenario
+
+    # the target and a bystander walk off side by side; the robot follows
+    builtin = resources.files("followbot.services.sim").joinpath("scenarios")
+    spec = yaml.safe_load(builtin.joinpath("thesis_5_2_4_turn_apart.yaml").read_text())
+    spec["duration_s"] = 7.0
+    scenario = tmp_path / "turn_apart_7s.yaml"
+    scenario.write_text(yaml.safe_dump(spec))
+    runs = [
+        run_scenario(str(scenario), "thesis", tmp_path / name, vision=False, progress=False)
+        for name in ("a", "b")
+    ]
+    for run in runs:
+        assert not any(run.timeouts.values()), run.timeouts
+    recording = tmp_path / "a" / "run.mcap"
+    out = track(tmp_path / "track", "--odom-topic", "sensors/odom", recording=recording,
+                scan_topic="sensors/scan", max_scans=None)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert "did not answer" not in out.stdout
+
+    robot = [m for _, t, m in open_recording(recording).messages() if t == "sensors/odom"]
+    assert robot[-1].x_m - robot[0].x_m > 0.2  # it moved: odometry matters
+    live = outputs(recording)
+    assert len(live) == 2 * len(runs[0].records) > 100
+    assert any(m["status"] == "tracking" for (t, _), m in live.items() if t.endswith("target"))
+    replayed = outputs(tmp_path / "track" / "tracks.mcap")
+    assert replayed == live, first_difference(live, replayed)
+    commands = ("tracking/target", "tracking/people", "control/cmd_vel", "control/pan")
+    a, b = outputs(recording, commands), outputs(tmp_path / "b" / "run.mcap", commands)
+    assert a == b, first_difference(a, b)
+
+
+def test_odometry_goes_out_before_the_scan_it_brackets():
+    """Rule 5: a scan is sent once odometry stamped at or after it has gone out."""
+    from followbot.schemas import Image, LaserScan, Odometry
+    from followbot.track import odometry_ahead
+
+    def scan(ms):
+        ranges = np.ones(3, np.float32)
+        return "sensors/scan", LaserScan(stamp_ns=ms * MS, angle_min_rad=0.0, ranges=ranges,
+                                         angle_increment_rad=0.1, range_min_m=0.0,
+                                         range_max_m=10.0)  # fmt: skip
+
+    def odom(ms):
+        return "sensors/odom", Odometry(stamp_ns=ms * MS, x_m=0.0, y_m=0.0, yaw_rad=0.0)
+
+    def image(ms):
+        return "sensors/image", Image.from_array(np.zeros((2, 2, 3), np.uint8), stamp_ns=ms * MS)
+
+    def order(stream, **kw):
+        return [(t.split("/")[1], m.stamp_ns // MS) for t, m in odometry_ahead(stream, **kw)]
+
+    # odometry at 30 ms, scans every 100 ms: each scan waits for the next odometry; an image
+    # after the scan stays after it
+    stream = [odom(60), odom(90), scan(100), image(100), odom(120), odom(150), scan(200),
+              odom(210)]  # fmt: skip
+    assert order(stream) == [
+        ("odom", 60), ("odom", 90), ("odom", 120), ("scan", 100), ("image", 100),
+        ("odom", 150), ("odom", 210), ("scan", 200),
+    ]  # fmt: skip
+    # odometry at the scan's own stamp (the simulator's): nothing moves
+    aligned = [odom(80), odom(100), scan(100), odom(120)]
+    assert order(aligned) == [("odom", 80), ("odom", 100), ("scan", 100), ("odom", 120)]
+    # a gap in the odometry: a scan waits only until the recording is a horizon past it
+    gap = [odom(0), scan(100), scan(200), odom(250), scan(300)]
+    assert order(gap, horizon_ns=120 * MS) == [
+        ("odom", 0), ("scan", 100), ("odom", 250), ("scan", 200), ("scan", 300),
+    ]  # fmt: skip

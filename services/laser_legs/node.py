@@ -45,6 +45,10 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     """Lock-step runs: hold a scan until the tracker's target for the previous scan has
     arrived (it races the next scan over another link), at most this long. 0 (live): never
     wait, use whatever target is newest."""
+    lockstep_odometry_wait_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.0
+    """Lock-step runs: hold scan k until odometry stamped at or after k has arrived (two
+    topics reach a node in no guaranteed order), at most this long. 0 (live, or no
+    odometry): never wait."""
     laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
 
@@ -85,17 +89,22 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
 
     # Lock-step: scans held until the target naming the previous scan arrives (see settings).
     held: deque[tuple[LaserScan, float]] = deque()
-    stamps = {"scan": -1, "target": -1}
+    stamps = {"scan": -1, "target": -1, "odom": -1}
     counts = {"waits": 0, "wait_timeouts": 0}
-    wait_s = settings.lockstep_target_wait_s if settings.use_target_prediction else 0.0
+    target_wait = settings.lockstep_target_wait_s if settings.use_target_prediction else 0.0
+    odom_wait = settings.lockstep_odometry_wait_s if settings.use_target_prediction else 0.0
+    wait_s = max(target_wait, odom_wait)
 
-    def ready() -> bool:
+    def ready(scan: LaserScan) -> bool:
+        # the odometry of the scan's instant (sent before the scan, on another topic)
+        if odom_wait > 0 and stamps["odom"] < scan.stamp_ns:
+            return False
         # the tracker answers every scan, so once it has answered any, wait for its answer
         # to the previous scan before gating the next one on it
-        return stamps["target"] < 0 or stamps["target"] >= stamps["scan"]
+        return target_wait <= 0 or stamps["target"] < 0 or stamps["target"] >= stamps["scan"]
 
     def on_scan(scan: LaserScan) -> None:
-        if wait_s > 0 and (held or not ready()):
+        if wait_s > 0 and (held or not ready(scan)):
             held.append((scan, time.monotonic()))
             counts["waits"] += 1
             return
@@ -106,8 +115,13 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
         stamps["target"] = max(stamps["target"], target.stamp_ns)
         release()
 
+    def on_odometry(odom) -> None:
+        predictor.add_odometry(odom)
+        stamps["odom"] = max(stamps["odom"], odom.stamp_ns)
+        release()
+
     def release(force: bool = False) -> None:
-        while held and (force or ready()):
+        while held and (force or ready(held[0][0])):
             process(held.popleft()[0])
             force = False
 
@@ -130,7 +144,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
     if settings.use_target_prediction:
         node.subscribe("tracking/target", on_target, policy="all")
-        node.subscribe("sensors/odom", predictor.add_odometry, policy="all")
+        node.subscribe("sensors/odom", on_odometry, policy="all")
     if wait_s > 0:
         node.every(0.005, check_held, name="held_scans")
 

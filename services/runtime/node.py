@@ -36,6 +36,7 @@ the process exits 0.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import queue
@@ -45,7 +46,10 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Generic, Literal, TypeVar
+
+import msgspec
 
 from followbot.schemas import Health, Keys, Message, RejectedMessage, decode, encode, topic_type
 
@@ -58,6 +62,10 @@ __all__ = ["Node", "Policy", "TypedPublisher", "configure_logging", "zenoh_node"
 M = TypeVar("M", bound=Message)
 Policy = Literal["latest", "all"]
 Dispatch = Literal["inline", "loop"]
+
+#: Environment variable naming a folder: every node started with it writes there, one line per
+#: message its handlers get, in the order they get them (docs/runtime.md, "Tracing inputs").
+TRACE_ENV = "FOLLOWBOT_TRACE_INPUTS"
 
 #: Longest the loop sleeps without looking at its stop flag and timers.
 _MAX_WAIT_S = 0.1
@@ -129,6 +137,24 @@ class _Input(Generic[M]):
             self._wake.put(self)
 
 
+class _InputTrace:
+    """``<folder>/<service>.<pid>.inputs``: ``topic stamp_ns digest`` per message handled.
+
+    The digest covers the message with ``seq`` set to 0 (a replay numbers messages afresh), so
+    two runs' files can be compared with ``diff`` to find the first input that differed.
+    """
+
+    def __init__(self, folder: str, service: str) -> None:
+        path = Path(folder) / f"{service}.{os.getpid()}.inputs"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = path.open("w", buffering=1)  # line-buffered: whole lines, even if killed
+
+    def write(self, topic: str, message: Message) -> None:
+        body = encode(msgspec.structs.replace(message, seq=0))
+        digest = hashlib.blake2b(body, digest_size=8).hexdigest()
+        self._file.write(f"{topic} {message.stamp_ns} {digest}\n")
+
+
 class TypedPublisher(Generic[M]):
     """Publishes messages of one topic; numbers them and can answer queries with the last."""
 
@@ -195,6 +221,8 @@ class Node:
         self._health_pub = bus.publisher(self.keys.health(service))
         self._last_health: tuple[int, dict[str, int], dict[str, int]] | None = None
         self._announced = False
+        folder = os.environ.get(TRACE_ENV)
+        self._trace = _InputTrace(folder, service) if folder else None
         self.every(settings.health_period_s, self.publish_health, name="health")
 
     # ------------------------------------------------------------------ declaration
@@ -363,6 +391,8 @@ class Node:
                     exc,
                 )
                 return
+            if self._trace is not None:
+                self._trace.write(item.topic, message)
             if item.with_payload:
                 self._call(item.topic, item.handler, message, payload)
             else:

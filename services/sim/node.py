@@ -10,8 +10,10 @@ start); obeys ``control/cmd_vel`` and ``control/pan``. A velocity command older 
 scenario's ``robot.cmd_timeout_s`` (sim time) is dropped by the simulated base's own watchdog,
 which stops the robot. At the scenario's end the service logs a summary line and exits 0.
 
-Messages of one sensor instant go out in the order odometry, image, truth, scan: the scan last,
-so a stage that receives scan k already has the odometry and image due at or before k.
+Messages of one sensor instant go out in the order odometry, image, truth, scan: the scan
+last. Odometry goes out at its own rate and, in lock-step, also at every scan instant that
+rate misses (the stages wait for odometry stamped at or after a scan before they use it:
+docs/runtime.md, rule 5).
 
 Clocks (``mode``):
 
@@ -287,6 +289,7 @@ class SimRunner:
             self._finish()
             return
         scan: LaserScan | None = None
+        odom = False
         for msg in sim.tick():
             if isinstance(msg, LaserScan):
                 scan = msg
@@ -298,6 +301,12 @@ class SimRunner:
             else:
                 self._odom_pub.put(msg)
                 self.counts["odom"] += 1
+                odom = True
+        if scan is not None and self.lockstep and not odom:
+            # rule 5: the stages hold scan k until odometry stamped k or later has come; when
+            # the odometry rate does not divide the scan instants, send one at the scan's
+            self._odom_pub.put(sim.odometry())
+            self.counts["odom"] += 1
         if scan is not None:
             self.last_scan_ns = scan.stamp_ns
             self._arm(scan.stamp_ns)

@@ -11,8 +11,12 @@ lock-step source always gets its answer (docs/runtime.md, rules 2 and 4).
 
 from __future__ import annotations
 
+from collections import deque
+from typing import Annotated
+
 import msgspec
 
+from followbot.services.runtime.lockstep import HeldInputs
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.plugins import UnknownPlugin
 from followbot.services.runtime.service import service_main
@@ -47,6 +51,14 @@ _TrackerNodeBase = _with_node_settings(TrackerSettings, "_TrackerNodeBase")
 class TrackerNodeSettings(_TrackerNodeBase, kw_only=True, forbid_unknown_fields=True):
     vision_service: str = "vision_verify"
     """Whose liveliness says vision is there (else the status carries no_vision)."""
+    lockstep_odometry_wait_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 0.0
+    """Lock-step runs: hold the candidates of scan k until odometry stamped at or after k has
+    arrived (it comes from the source, the candidates through laser_legs: either may come
+    first), at most this long. 0 (live, or no odometry): never wait."""
+    lockstep_vision_wait_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 0.0
+    """Lock-step runs with vision: hold the candidates of scan k until the verification due at
+    k (of the scan max(vision_lag_scans, 1) steps earlier) has arrived, at most this long.
+    0 (live, or no vision): never wait."""
 
 
 def core_settings(settings: msgspec.Struct) -> TrackerSettings:
@@ -62,20 +74,88 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
     target_pub = node.publisher("tracking/target")
     people_pub = node.publisher("tracking/people")
 
-    def on_candidates(msg) -> None:
+    # Lock-step (docs/runtime.md rule 5): a step waits for the odometry and the verification
+    # it must use, which reach this process by other links than the candidates. A new target
+    # model takes effect at the step that applies the first verification judged with it (the
+    # model is sent just before that verification, but on another topic: either may come
+    # first), not whenever it happens to arrive.
+    lag = max(settings.vision_lag_scans, 1)
+    stepped: deque[int] = deque(maxlen=lag)  # stamps of the last `lag` scans stepped
+    newest = {"odom": -1, "verification": -1, "model": 0}  # model_id 0: judged without one
+    verified_with: deque[tuple[int, int]] = deque()  # (verification stamp, its model_id)
+    held_models: list = []
+    odom_wait, vision_wait = settings.lockstep_odometry_wait_s, settings.lockstep_vision_wait_s
+
+    def due_stamp() -> int | None:
+        """Stamp of the scan whose verification the next step applies (None: none yet)."""
+        return stepped[0] if len(stepped) == lag else None
+
+    def model_due(due: int | None) -> int:
+        """The newest model_id named by a verification the next step applies."""
+        while len(verified_with) > 1 and due is not None and verified_with[1][0] <= due:
+            verified_with.popleft()  # ids only grow: the latest due one is all that counts
+        if due is None or not verified_with or verified_with[0][0] > due:
+            return -1
+        return verified_with[0][1]
+
+    def ready(msg) -> bool:
+        if odom_wait > 0 and newest["odom"] < msg.stamp_ns:
+            return False
+        if vision_wait <= 0:
+            return True
+        due = due_stamp()
+        if due is not None and newest["verification"] < due:
+            return False
+        return newest["model"] >= model_due(due)
+
+    def step(msg) -> None:
+        if held_models:
+            wanted = model_due(due_stamp())
+            while held_models and held_models[0].model_id <= wanted:
+                tracker.set_target_model(held_models.pop(0))
+        stepped.append(msg.stamp_ns)
         target, people = tracker.step(msg)
         target_pub.put(target)
         people_pub.put(people)
-        node.notes = [f"status:{target.status}", *target.flags][:16]
+        notes = [f"status:{target.status}", *target.flags]
+        if held is not None:
+            notes += [f"lockstep_waits={held.waits}", f"lockstep_wait_timeouts={held.timeouts}"]
+        node.notes = notes[:16]
 
-    node.subscribe("sensors/odom", tracker.add_odometry, policy="all")
-    node.subscribe("perception/verification", tracker.add_verification, policy="all")
+    held = None
+    on_candidates = step
+    if odom_wait > 0 or vision_wait > 0:
+        held = HeldInputs(node, step, ready, max(odom_wait, vision_wait), "candidates")
+        on_candidates = held.offer
+
+    def on_odometry(odom) -> None:
+        tracker.add_odometry(odom)
+        newest["odom"] = max(newest["odom"], odom.stamp_ns)
+        if held is not None:
+            held.release()
+
+    def on_verification(verification) -> None:
+        tracker.add_verification(verification)
+        newest["verification"] = max(newest["verification"], verification.stamp_ns)
+        if vision_wait > 0:
+            verified_with.append((verification.stamp_ns, verification.model_id))
+        if held is not None:
+            held.release()
+
+    node.subscribe("sensors/odom", on_odometry, policy="all")
+    node.subscribe("perception/verification", on_verification, policy="all")
     # Keep the model and answer queries with it: the tracker lives on the robot, so a vision
     # worker that restarts (another machine, a crash) recovers the model instead of rebuilding.
     model_pub = node.publisher("perception/target_model", serve_last=True)
 
     def on_model(model) -> None:
-        tracker.set_target_model(model)
+        if vision_wait > 0:
+            held_models.append(model)
+            newest["model"] = max(newest["model"], model.model_id)
+            if held is not None:
+                held.release()
+        else:
+            tracker.set_target_model(model)
         model_pub.serve(model)
 
     node.subscribe("perception/target_model", on_model, policy="all")

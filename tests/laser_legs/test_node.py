@@ -270,3 +270,26 @@ def test_lockstep_holds_a_scan_until_the_target_of_the_previous_scan_arrives():
     assert len(h.out) == 2
     (c,) = h.out[-1].candidates  # gated on the target of scan 1, not of scan 0
     assert math.hypot(c.x_m - 1.5, c.y_m - 0.8) < 0.1
+
+
+def test_lockstep_holds_a_scan_until_the_odometry_of_its_instant_arrives():
+    """Odometry and scan come on two topics, in no guaranteed order: the prediction for scan k
+    must use the odometry of k (interpolated), never an extrapolation from an older one."""
+
+    def run(odometry_first: bool) -> list[PersonCandidates]:
+        h = Harness(lockstep_target_wait_s=5.0, lockstep_odometry_wait_s=5.0)
+        h.put("sensors/odom", Odometry(stamp_ns=0, x_m=0.0, y_m=0.0, yaw_rad=0.0, v_mps=0.0))
+        h.put("tracking/target", target(0, 1.5, 0.5))
+        # the robot turned between the two instants; the old twist says it stood still
+        odom = Odometry(stamp_ns=100 * MS, x_m=0.0, y_m=0.0, yaw_rad=0.4, w_radps=4.0)
+        if odometry_first:
+            h.put("sensors/odom", odom)
+        h.put("sensors/scan", two_people(100 * MS))
+        if not odometry_first:
+            assert h.out == []  # held: its odometry is not there yet
+            h.put("sensors/odom", odom)
+        return h.out
+
+    late, early = run(odometry_first=False), run(odometry_first=True)
+    assert len(late) == 1
+    assert late == early

@@ -313,3 +313,31 @@ def test_scenario_from_a_file_and_bad_settings(tmp_path):
         setup_with(scenario=str(broken))
     with pytest.raises(ValueError, match="unknown topic"):
         setup_with(stages={"tracker": ["tracking/nope"]})
+
+
+def test_lockstep_sends_odometry_at_every_scan_instant(tmp_path):
+    """Rule 5: the stages hold scan k until odometry stamped >= k arrives; with an odometry
+    rate that misses the scan instants the sim adds one at the scan's stamp, in lock-step."""
+    path = tmp_path / "odom30.yaml"
+    path.write_text(
+        "name: odom30\nduration_s: 0.5\npeople: [{id: 1, start: [2, 0]}]\n"
+        "robot: {odometry: {rate_hz: 30}}\n"
+    )
+    for mode in ("lockstep", "realtime"):
+        net = FakeNetwork()
+        run_sim(net, scenario=str(path), mode=mode, rate=20.0)
+        odom, scans = [], []
+        for topic, p in sim_stream(net):
+            t = decode_any(p).stamp_ns
+            if topic == "sensors/odom":
+                odom.append(t)
+            elif topic == "sensors/scan":
+                scans.append(t)
+                if mode == "lockstep":  # the scan's odometry came before it
+                    assert odom[-1] == t
+        grid = [k * 33_333_333 for k in range(16)]  # 0 .. 0.49999 s
+        assert scans == [k * SCAN_NS for k in range(5)]
+        if mode == "lockstep":
+            assert odom == sorted(set(grid) | set(scans[1:]))
+        else:
+            assert odom == grid

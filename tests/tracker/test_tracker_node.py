@@ -17,6 +17,8 @@ from followbot.schemas import (
     TargetModel,
     TrackState,
     VelocityCommand,
+    Verification,
+    VerifiedCandidate,
     decode,
     encode,
 )
@@ -129,3 +131,72 @@ def test_the_tracker_keeps_the_target_model_for_a_restarted_vision_worker(pipeli
     tracker.spin_once()
     (answer,) = vision.query("perception/target_model")  # the worker that built it is gone
     assert answer.model_id == 3 and answer.x_m == 1.5
+
+
+def _tracker_outputs(messages, *settings):
+    """Feed ``(topic, message)`` in this order to a tracker node; its tracking/target."""
+    net = FakeNetwork()
+    s = load_settings(TrackerNodeSettings, overrides=list(settings))
+    node = Node("tracker", s, net.bus("tracker"))
+    tracker_setup(node, s)
+    for topic, message in messages:
+        net.put(KEYS.topic(topic), encode(message))
+        node.spin_once()
+    return of(net, "tracking/target", TrackState)
+
+
+def test_lockstep_a_step_waits_for_the_odometry_of_its_scan():
+    """Odometry comes from the source, candidates through laser_legs: either may come first.
+    Both orders give the same step (interpolated, not extrapolated from an older pose)."""
+    still = Odometry(stamp_ns=0, x_m=0.0, y_m=0.0, yaw_rad=0.0)
+    turned = Odometry(stamp_ns=SCAN_NS, x_m=0.05, y_m=0.0, yaw_rad=0.3, w_radps=2.5)
+    c0, c1 = candidates(0, 2.0, 0.0), candidates(SCAN_NS, 1.9, -0.6)
+    odometry_first = [("sensors/odom", still), ("perception/candidates", c0),
+                      ("sensors/odom", turned), ("perception/candidates", c1)]  # fmt: skip
+    candidates_first = [("sensors/odom", still), ("perception/candidates", c0),
+                        ("perception/candidates", c1), ("sensors/odom", turned)]  # fmt: skip
+    wait = ["acquire=nearest", "lockstep_odometry_wait_s=5"]
+    a = _tracker_outputs(odometry_first, *wait)
+    b = _tracker_outputs(candidates_first, *wait)
+    assert [t.stamp_ns for t in a] == [0, SCAN_NS]
+    assert a == b
+    # what the wait prevents: without it the second order steps before the turn is known
+    assert _tracker_outputs(candidates_first, "acquire=nearest")[-1] != a[-1]
+
+
+def test_lockstep_vision_is_applied_at_the_same_step_whatever_the_arrival_order():
+    """A verification (and the model it was judged with) reaches the tracker by another link
+    than the candidates; in lock-step it takes effect at a fixed step all the same."""
+    model = TargetModel(
+        stamp_ns=0, model_id=1, verifier="histogram", x_m=2.0, y_m=-0.5, rect_width_px=60,
+        rect_height_px=180, image_width=320, image_height=240,
+    )  # fmt: skip
+    two = [Candidate(x_m=2.0, y_m=y, range_m=2.0, bearing_rad=0.0) for y in (-0.5, 0.5)]
+    verification = Verification(
+        stamp_ns=0, image_stamp_ns=0, model_id=1, verifier="histogram", chosen=1,
+        candidates=[VerifiedCandidate(index=i, x_m=c.x_m, y_m=c.y_m, in_view=True, distance=0.1)
+                    for i, c in enumerate(two)],
+    )  # fmt: skip
+    scans = [PersonCandidates(stamp_ns=k * SCAN_NS, candidates=two) for k in range(4)]
+    odom = [Odometry(stamp_ns=k * SCAN_NS, x_m=0.0, y_m=0.0, yaw_rad=0.0) for k in range(4)]
+
+    m, v = ("perception/target_model", model), ("perception/verification", verification)
+    c1 = [("sensors/odom", odom[1]), ("perception/candidates", scans[1])]
+    orders = [[m, v, *c1], [v, *c1, m], [*c1, m, v]]
+
+    def run(order, *settings):
+        msgs = [("sensors/odom", odom[0]), ("perception/candidates", scans[0]), *order]
+        for k in (2, 3):  # vision answers every scan in lock-step (here: no choice)
+            empty = Verification(stamp_ns=(k - 1) * SCAN_NS, image_stamp_ns=0, model_id=1,
+                                 verifier="histogram")  # fmt: skip
+            msgs += [("perception/verification", empty), ("sensors/odom", odom[k]),
+                     ("perception/candidates", scans[k])]  # fmt: skip
+        return _tracker_outputs(msgs, *settings)
+
+    wait = ["lockstep_odometry_wait_s=5", "lockstep_vision_wait_s=5"]
+    results = [run(o, *wait) for o in orders]
+    assert all(len(r) == 4 for r in results)
+    assert [t.status for t in results[0]] == ["initialising", "tracking", "tracking", "tracking"]
+    assert results[1] == results[0] and results[2] == results[0]
+    # without the waits, the last order takes the target one scan later
+    assert run(orders[2])[1] != results[0][1]
