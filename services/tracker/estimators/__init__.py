@@ -19,6 +19,8 @@ import numpy as np
 from followbot.services.runtime.plugins import Registry
 
 from .base import Estimator, wrap_angle
+from .kalman_window import KalmanWindowEstimator, KalmanWindowSettings
+from .nearest import NearestFeatureEstimator, NearestSettings
 from .particle import (
     ParticleEstimator,
     ParticleSettings,
@@ -30,6 +32,10 @@ from .ukf import UKFEstimator, UKFSettings
 __all__ = [
     "BUILTIN",
     "Estimator",
+    "KalmanWindowEstimator",
+    "KalmanWindowSettings",
+    "NearestFeatureEstimator",
+    "NearestSettings",
     "ParticleEstimator",
     "ParticleSettings",
     "UKFEstimator",
@@ -42,7 +48,12 @@ __all__ = [
 ]
 
 #: The built-in estimators (also declared as entry points).
-BUILTIN: dict[str, type] = {"particle": ParticleEstimator, "ukf": UKFEstimator}
+BUILTIN: dict[str, type] = {
+    "particle": ParticleEstimator,
+    "ukf": UKFEstimator,
+    "kalman_window": KalmanWindowEstimator,
+    "nearest": NearestFeatureEstimator,
+}
 
 registry = Registry("estimators")
 
