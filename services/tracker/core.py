@@ -45,11 +45,24 @@ position carried to the current frame by odometry) becomes the target when there
 replaces the current target after ``switch_votes`` consecutive verifications that prefer it.
 In lock-step runs ``vision_lag_scans = N`` holds the verification of scan k until the step of
 scan k + N (at least the next step: the tracker never waits for vision).
+
+Negative evidence rolls the target back (beyond the thesis). When a verification says the
+candidate the target took at scan k is *not* the target (appearance distance above the
+verifier's threshold) -- typically another person walking between the robot and the target,
+or a leg of a passer-by paired with one of the target's -- the target's updates since scan k
+followed someone else. The tracker keeps, for each scan, a snapshot of the target's estimator
+after the prediction and before the update; on such a verification (``rollback: true``) it
+(1) turns the current estimator, which now follows the other person, into a new track of its
+own, and (2) gives the target the snapshot of scan k carried to now by odometry and the
+motion model, as a coasting track. The two then compete for the next candidates in the
+assignment, so the target no longer jumps onto the person who hid it. ``reject_votes``
+consecutive rejections still drop the target.
 """
 
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from collections import OrderedDict
 from typing import Annotated, Any, Literal
@@ -223,6 +236,19 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     than follow someone vision says is not the target (0: never). Beyond the thesis, which
     always takes the nearest match."""
     """Consecutive verifications preferring another track before the target moves to it."""
+    split_pair_m: Annotated[float, msgspec.Meta(ge=0)] = 0.4
+    """A two-leg candidate whose legs are farther apart than this may be one leg each of two
+    people (the thesis pairs legs up to 500 mm apart; when one of the target's legs is hidden
+    its other leg pairs with a passer-by's): a track may then take either leg alone, when that
+    leg is nearer its prediction than the pair's centre. 0: always the centre. In the
+    simulator a person's own legs were at most 0.36 m apart, such cross pairs 0.40-0.49 m."""
+    rollback: bool = True
+    """Roll the target back to its state before a candidate that vision rejected (module doc);
+    false: only count the rejection towards reject_votes (the behaviour before this)."""
+    rollback_jump_m: Annotated[float, msgspec.Meta(ge=0)] = 0.15
+    """... only when that candidate also lay this far or farther from the target's prediction
+    (0.15 m: 1.25 m/s over one 120 ms scan). The target itself, seen where it was expected
+    while its look changes (turning round, lighting), is not split off by a rejection."""
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
     vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
@@ -257,6 +283,8 @@ class _Scan(msgspec.Struct):
     index: int
     pose: Pose | None
     assoc: dict[int, int]  # candidate index -> track id
+    # the target's id and estimator after this scan's prediction, before its update
+    target_prior: tuple[int, Any] | None = None
 
 
 # --------------------------------------------------------------------------- the tracker
@@ -295,6 +323,8 @@ class Tracker:
         self.verifications_applied = 0
         self.verifications_unmatched = 0
         self.target_switches = 0
+        self.rollbacks = 0  # target tracks split by a rejecting verification
+        self._now: tuple[int, Pose | None] = (0, None)
         self.steps_without_odometry = 0
 
     # ------------------------------------------------------------------ inputs
@@ -359,6 +389,14 @@ class Tracker:
                     t.estimator.ego_motion(rotation, translation)
                 t.estimator.predict(dt, t.misses)
 
+        # the target before this scan's update, for a rollback by late vision
+        prior = None
+        if self.settings.rollback and self.target_id >= 0:  # (not vision_alive: timing)
+            est = self.tracks[self.target_id].estimator
+            snapshot = getattr(est, "snapshot", None)
+            prior = (self.target_id, snapshot() if snapshot else copy.deepcopy(est))
+        self._now = (stamp, pose)
+
         # 3. late vision, as of the scans it names
         self._vision_sources = False
         self._apply_due_verifications(pose)
@@ -368,19 +406,28 @@ class Tracker:
         # 4. associate
         cands = candidates.candidates
         z = np.array([[c.x_m, c.y_m] for c in cands], dtype=float).reshape(-1, 2)
+        points, starts = self._measurement_points(candidates, z)
         ids = list(self.tracks)
         matched: dict[int, int] = {}  # track id -> candidate index
+        measured: dict[int, np.ndarray] = {}  # track id -> the point it is updated with
         if ids and len(z):
             cost_all = getattr(self._cls, "cost_all", None)
             if cost_all is not None and len(ids) > 1:
                 ts = [self.tracks[tid] for tid in ids]
-                cost = cost_all([t.estimator for t in ts], z, [t.misses for t in ts])
+                cost_p = cost_all([t.estimator for t in ts], points, [t.misses for t in ts])
             else:
-                cost = np.empty((len(ids), len(z)))
+                cost_p = np.empty((len(ids), len(points)))
                 for r, tid in enumerate(ids):
                     t = self.tracks[tid]
-                    d = t.estimator.distance(z, t.misses)
-                    cost[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
+                    d = t.estimator.distance(points, t.misses)
+                    cost_p[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
+            if starts is None:  # one point per candidate
+                cost, best = cost_p, None
+            else:  # a candidate's cost is that of its best point (centre or one of its legs)
+                cost = np.minimum.reduceat(cost_p, starts, axis=1)
+                best = np.column_stack(
+                    [np.argmin(g, axis=1) for g in np.split(cost_p, starts[1:], axis=1)]
+                )
             finite = np.isfinite(cost)
             if finite.any():
                 big = 1e6 + 2.0 * float(cost[finite].max(initial=0.0))
@@ -388,15 +435,18 @@ class Tracker:
                 for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
                     if finite[r, c]:
                         matched[ids[r]] = c
+                        if best is not None and best[r, c]:
+                            measured[ids[r]] = points[starts[c] + best[r, c]]
 
         # 5. update, count misses, start and delete tracks
         updated = [self.tracks[tid] for tid in ids if tid in matched]
+        zs = [measured.get(t.id, z[matched[t.id]]) for t in updated]
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
-            update_all([t.estimator for t in updated], z[[matched[t.id] for t in updated]])
+            update_all([t.estimator for t in updated], np.array(zs))
         else:
-            for t in updated:
-                t.estimator.update(z[matched[t.id]])
+            for t, zi in zip(updated, zs, strict=True):
+                t.estimator.update(zi)
         for tid in ids:
             t = self.tracks[tid]
             if tid in matched:
@@ -431,11 +481,40 @@ class Tracker:
             sources.append("vision")
 
         # 6. history for late verifications
-        self._history[stamp] = _Scan(self._index, pose, {c: tid for tid, c in matched.items()})
+        if prior is not None and prior[0] != self.target_id:
+            prior = None  # vision moved the target during this step
+        assoc = {c: tid for tid, c in matched.items()}
+        self._history[stamp] = _Scan(self._index, pose, assoc, prior)
         while len(self._history) > s.history_scans:
             self._history.popitem(last=False)
         self._index += 1
         return self._outputs(stamp, candidates.frame_id, flags, sources)
+
+    def _measurement_points(
+        self, candidates: PersonCandidates, z: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Points a track may be updated with: each candidate's centre and, for a pair whose
+        legs are more than ``split_pair_m`` apart, each of its legs (``starts``: where each
+        candidate's points begin; None when every candidate has only its centre)."""
+        split = self.settings.split_pair_m
+        if not split:
+            return z, None
+        wide = [
+            c
+            for c, cand in enumerate(candidates.candidates)
+            if len(cand.legs) == 2
+            and math.hypot(cand.legs[0].x_m - cand.legs[1].x_m, cand.legs[0].y_m - cand.legs[1].y_m)
+            > split
+        ]
+        if not wide:
+            return z, None
+        pts, starts = [], []
+        for c, cand in enumerate(candidates.candidates):
+            starts.append(len(pts))
+            pts.append(z[c])
+            if c in wide:
+                pts.extend(np.array([leg.x_m, leg.y_m]) for leg in cand.legs)
+        return np.array(pts), np.array(starts)
 
     # ------------------------------------------------------------------ target choice
 
@@ -549,9 +628,18 @@ class Tracker:
         prev, votes = self._switch
         votes = votes + 1 if prev == tid else 1
         self._switch = (tid, votes)
-        if votes >= self.settings.switch_votes:
+        if votes >= self.settings.switch_votes or self._repairs_split(tid):
             self._set_target(tid)
             self._vision_sources = True
+
+    def _repairs_split(self, tid: int) -> bool:
+        """Vision chose a track next to the target while the target coasts: after a rollback
+        on a false rejection the real target may be that track; take it at once."""
+        target = self.tracks.get(self.target_id)
+        if target is None or target.misses == 0:
+            return False
+        d = float(np.hypot(*(self.tracks[tid].position - target.position)))
+        return d <= self.settings.model_match_m
 
     def _judge_target(self, v: Verification, scan: _Scan) -> None:
         """Negative evidence: vision saw the target's candidate and said it is not the target."""
@@ -567,11 +655,46 @@ class Tracker:
             return
         if seen[0].distance <= v.threshold:
             return  # close enough, only another was closer: the switch votes decide
+        if self.settings.rollback:
+            self._rollback(v.stamp_ns, scan, (seen[0].x_m, seen[0].y_m))
         self._rejects += 1
         if self._rejects >= self.settings.reject_votes:
             self._rejects = 0
             self.target_rejections += 1
             self._lose_target(self.tracks[self.target_id])
+
+    def _rollback(self, stamp_k: int, scan: _Scan, taken: tuple[float, float]) -> None:
+        """Vision rejected what the target took at scan k: split the track (module doc)."""
+        prior = scan.target_prior
+        if prior is None or prior[0] != self.target_id or self.target_id not in self.tracks:
+            return
+        tid, before = prior
+        jump = math.hypot(taken[0] - before.mean[0], taken[1] - before.mean[1])
+        if jump < self.settings.rollback_jump_m:
+            return
+        stamp_now, pose_now = self._now
+        track = self.tracks[tid]
+        s = self.settings
+        # 1. what the target followed since scan k is somebody else: their own track
+        other = Track(self._next_id, track.estimator, track.born_ns)
+        self._next_id += 1
+        other.hits, other.misses = max(track.hits, s.confirm_hits), track.misses
+        other.last_seen_ns = track.last_seen_ns
+        self.tracks[other.id] = other
+        for st in self._history.values():  # scans k.. : those candidates were the other's
+            if st.index >= scan.index:
+                st.assoc = {c: other.id if t == tid else t for c, t in st.assoc.items()}
+                if st.target_prior is not None and st.index > scan.index:
+                    st.target_prior = None  # snapshots taken after the wrong update
+        # 2. the target as it was before scan k's update, carried to now
+        if scan.pose is not None and pose_now is not None:
+            rotation, translation = se2_change(scan.pose, pose_now)
+            before.ego_motion(rotation, translation)
+        misses = max(1, self._index - scan.index)
+        before.predict(min((stamp_now - stamp_k) / _NS, s.max_dt_s), misses)
+        track.estimator = before
+        track.misses = misses
+        self.rollbacks += 1
 
     # ------------------------------------------------------------------ outputs
 

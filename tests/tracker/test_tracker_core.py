@@ -436,7 +436,7 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     """Following someone vision says is not the target (e.g. after a crossing swapped the
     tracks): after reject_votes rejections the target is dropped and the robot stops. Vision
     answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
-    trk = Tracker(TrackerSettings(reject_votes=reject_votes))
+    trk = Tracker(TrackerSettings(reject_votes=reject_votes, rollback=False))
     trk.set_vision_alive(True)
     still_robot(trk, 0)
     trk.set_target_model(model(0, 2.0, 0.0))
@@ -462,8 +462,100 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     assert target.status == "tracking"
 
 
+def cands_multi(stamp_ns, points):
+    return cands(stamp_ns, *points) if points else cands(stamp_ns)
+
+
+@pytest.mark.parametrize("rollback", [True, False])
+def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(rollback):
+    """The target stands at (2, 0); a passer-by walks across in front of it and hides it for
+    three scans. Their candidate lies inside the target's gate, so the target takes it once;
+    vision (one scan late) rejects that candidate. With rollback the target returns to where
+    it was and coasts while a new track follows the passer-by; without, the estimate is
+    dragged onto the passer-by."""
+    trk = Tracker(TrackerSettings(rollback=rollback))
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    # scans 1..2 the target alone; 3..5 only the passer-by (target hidden); 6.. both
+    passer = {3: (1.75, 0.2), 4: (1.7, 0.05), 5: (1.68, -0.1), 6: (1.66, -0.3), 7: (1.65, -0.5)}
+    target_id = None
+    errors = []
+    for k in range(1, 10):
+        still_robot(trk, k * SCAN_NS)
+        points = [] if 3 <= k <= 5 else [(2.0, 0.0)]
+        if k in passer:
+            points.append(passer[k])
+        target, people = trk.step(cands_multi(k * SCAN_NS, points))
+        target_id = target_id or target.track_id
+        errors.append(math.hypot(target.x_m - 2.0, target.y_m))
+        # vision sees every candidate: the target's is close to the model, the passer-by's not
+        ver = Verification(
+            stamp_ns=k * SCAN_NS,
+            image_stamp_ns=k * SCAN_NS,
+            model_id=1,
+            verifier="test",
+            candidates=[
+                VerifiedCandidate(
+                    index=i, x_m=x, y_m=y, in_view=True, distance=0.3 if x == 2.0 else 1.1
+                )
+                for i, (x, y) in enumerate(points)
+            ],
+            chosen=next((i for i, (x, _) in enumerate(points) if x == 2.0), -1),
+            threshold=0.8,
+        )
+        trk.add_verification(ver)
+    if rollback:
+        assert trk.rollbacks >= 1
+        # the passer-by pulls the estimate for one scan at most (vision is one scan late)
+        assert max(errors[3:]) < 0.35 and max(errors[5:]) < 0.1, errors
+        assert target.status == "tracking" and target.track_id == target_id
+        assert any(math.hypot(p.x_m - 1.65, p.y_m + 0.5) < 0.2 for p in people.tracks)
+    else:
+        assert trk.rollbacks == 0
+        assert max(errors) > 0.25  # the estimate went onto the passer-by
+
+
+def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
+    """Its look changed (turning round), its position did not jump: no rollback."""
+    trk = Tracker(TrackerSettings())
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    for k, d in enumerate([0.3, 1.2, 0.3, 0.3], start=1):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        assert target.status == "tracking"
+        trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
+    assert trk.rollbacks == 0
+
+
+def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
+    """The target's candidate jumps 0.25 m (a long step, or a leg paired anew) and vision
+    wrongly rejects it: the rollback splits the track; the next verification that accepts the
+    person repairs the split. The target is never lost."""
+    trk = Tracker(TrackerSettings())
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    statuses = []
+    xs = [2.0, 2.25, 2.25, 2.25, 2.25, 2.25, 2.25]
+    for k, (x, d) in enumerate(zip(xs, [0.3, 1.2, 0.3, 0.3, 0.3, 0.3, 0.3], strict=True), 1):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (x, 0.0)))
+        statuses.append(target.status)
+        trk.add_verification(rejection(k * SCAN_NS, (x, 0.0), distance=d))
+    assert trk.rollbacks == 1
+    assert "lost" not in statuses and statuses.count("coasting") <= 2, statuses
+    assert statuses[-2:] == ["tracking", "tracking"]
+    assert math.hypot(target.x_m - 2.25, target.y_m) < 0.1
+
+
 def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
-    trk = Tracker(TrackerSettings(reject_votes=2))
+    trk = Tracker(TrackerSettings(reject_votes=2, rollback=False))
     trk.set_vision_alive(True)
     still_robot(trk, 0)
     trk.set_target_model(model(0, 2.0, 0.0))

@@ -29,6 +29,7 @@ same numbers as the per-track one up to floating-point rounding of the stacked m
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from typing import Annotated, Literal
@@ -222,6 +223,16 @@ class ParticleEstimator:
 
     def expired(self) -> bool:
         return False
+
+    def snapshot(self) -> ParticleEstimator:
+        """An independent copy of the cloud (for the tracker's rollback); cheaper than
+        ``copy.deepcopy``. The copy shares this estimator's Generator: what either draws next
+        depends only on the order of the calls, so runs stay deterministic."""
+        c = copy.copy(self)
+        c.particles = self.particles.copy()
+        c._spare = np.empty_like(self._spare)
+        c._mean = self._mean.copy()
+        return c
 
     # ------------------------------------------------------------------ all tracks at once
 
