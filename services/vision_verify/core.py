@@ -40,6 +40,7 @@ blend the chosen candidate's histograms into the model when the match is confide
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from typing import Annotated, Literal, Protocol, runtime_checkable
 
@@ -190,34 +191,37 @@ def project(
         xc, yc = camera.to_camera(xy[:, 0], xy[:, 1], pan_rad)
         u = camera.column(xc, yc)
         scale = model_depth_m / xc
-    w, h = rect_w_px * scale, rect_h_px * scale
+        w, h = rect_w_px * scale, rect_h_px * scale  # inf for a candidate at the lens
     cy, width, height = camera.cy, camera.width, camera.height
-    finite = np.isfinite(xy).all(axis=1)
-    for i in range(xy.shape[0]):
-        v = View(index=i, x_m=float(xy[i, 0]), y_m=float(xy[i, 1]))
+    min_depth, max_w = camera.min_depth_m, max_width_factor * width
+    finite = np.isfinite(xy).all(axis=1).tolist()
+    cols = (xy.tolist(), finite, xc.tolist(), yc.tolist(), u.tolist(), w.tolist(), h.tolist())
+    rows = zip(*cols, strict=True)
+    for i, ((x, y), fin, xci, yci, ui, wi, hi) in enumerate(rows):  # Python floats: fast
+        v = View(index=i, x_m=x, y_m=y)
         views.append(v)
-        if not finite[i]:
+        if not fin:
             v.status = "invalid"
             continue
-        v.depth_m, v.lateral_m = float(xc[i]), float(yc[i])
-        if not xc[i] >= camera.min_depth_m:
+        v.depth_m, v.lateral_m = xci, yci
+        if not xci >= min_depth:
             v.status = "behind"
             continue
-        v.u_px = float(u[i])
-        if not 0.0 <= u[i] < width:
+        v.u_px = ui
+        if not 0.0 <= ui < width:
             v.status = "out_of_view"
             continue
-        if not w[i] <= max_width_factor * width:
+        if not wi <= max_w:
             v.status = "too_large"
             continue
-        x0 = max(0, round(u[i] - w[i] / 2))
-        x1 = min(width, round(u[i] + w[i] / 2))
-        y0 = max(0, round(cy - h[i] / 2))
-        y1 = min(height, round(cy + h[i] / 2))
+        x0 = max(0, round(ui - wi / 2))
+        x1 = min(width, round(ui + wi / 2))
+        y0 = max(0, round(cy - hi / 2))
+        y1 = min(height, round(cy + hi / 2))
         if x1 - x0 < min_side_px or y1 - y0 < min_side_px:
             v.status = "too_small"
             continue
-        v.rect = (int(x0), int(y0), int(x1), int(y1))
+        v.rect = (x0, y0, x1, y1)
     return views
 
 
@@ -234,12 +238,61 @@ def clip_rect(rect: Rect, width: int, height: int) -> Rect | None:
 # --------------------------------------------------------------------------- histograms
 
 
+def _bins(n_bins: int, hi: float) -> np.ndarray:
+    """OpenCV's own uniform bin over [0, hi) of every value 0..255 (int64, -1 out of range).
+
+    Taken from ``cv2.calcBackProject`` of the 256 values, so they are exactly the bins
+    ``cv2.calcHist`` counts the values in."""
+    values = np.arange(256, dtype=np.uint8).reshape(1, 256)
+    ids = np.arange(1, n_bins + 1, dtype=np.float32)  # 0 in the result: out of range
+    return cv2.calcBackProject([values], [0], ids, [0, hi], 1).ravel().astype(np.int64) - 1
+
+
+_LUTS: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+def _colour_luts() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tables for the per-pixel colour bin (see :meth:`ImageFeatures.colour_index`)."""
+    global _LUTS
+    if _LUTS is None:
+        h, s, v = _bins(N_HUE, 180), _bins(N_SAT, 256), _bins(N_VAL, 256)
+        hue = np.where(h >= 0, N_SAT * h, 255)  # 10 x hue bin (0..90)
+        sat = np.where(s >= 0, s, 255)  # saturation bin ...
+        sat[:SV_MIN] = 255  # ... or 255 when S < 51
+        val = N_HUE * N_SAT + v  # 100 + brightness bin ...
+        val[:SV_MIN] |= 0x80  # ... with the top bit set when V < 51
+        _LUTS = (hue.astype(np.uint8), sat.astype(np.uint8), val.astype(np.uint8))
+    return _LUTS
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """A reusable C-contiguous work array of ``shape`` (its contents are garbage).
+
+    Per-rectangle temporaries live here rather than in fresh arrays: a fresh array above
+    glibc's mmap threshold (~128 kB, a 200 x 160 float32 image) page-faults on every call,
+    which costs more than the arithmetic. One buffer per name and thread, grown on demand."""
+    bufs = _SCRATCH.__dict__.setdefault("bufs", {})
+    n = math.prod(shape)
+    buf = bufs.get(name)
+    if buf is None or buf.dtype != dtype or buf.size < n:
+        buf = bufs[name] = np.empty(max(n, 1 << 16), dtype=dtype)
+    return buf[:n].reshape(shape)
+
+
 class ImageFeatures:
     """Per-image work shared by every rectangle of one frame, computed once and lazily.
 
-    Colour conversion, the colour mask and the Sobel gradients are computed over the whole
-    frame once; each rectangle then costs only its ``calcHist`` calls. (At a rectangle's border
-    the gradients use the real neighbouring pixels rather than a reflected border.)
+    Colour: the frame is converted to HSV once, and every pixel's colour bin (0..107 of a half
+    histogram) is looked up once into a uint8 *index image*; a rectangle's half histogram is
+    then one ``calcHist`` of 108 bins over that image. Edges: a rectangle's Sobel gradients are
+    taken on the rectangle grown by one pixel (cut back after), so at its border they see the
+    frame's real neighbours and equal the whole-frame gradients; the strong edges' orientations
+    are counted by one masked ``calcHist``. Temporaries live in reused work arrays, and no
+    frame-sized float array is made (each would page-fault afresh on every frame).
+    ``reference.py`` computes the same histograms the plain way; the tests check they agree.
     """
 
     def __init__(self, bgr: np.ndarray) -> None:
@@ -248,73 +301,128 @@ class ImageFeatures:
         self.bgr = bgr
         self.height, self.width = bgr.shape[:2]
         self._hsv: np.ndarray | None = None
-        self._colour: np.ndarray | None = None
-        self._dark: np.ndarray | None = None
+        self._index: np.ndarray | None = None
         self._grey: np.ndarray | None = None
-        self._mag: np.ndarray | None = None
-        self._ang: np.ndarray | None = None
+        self._block: tuple[Rect, np.ndarray, np.ndarray] | None = None
         self.cache: dict[str, object] = {}
         """Per-frame results of a verifier (detections, back-projections), by its own keys."""
 
     def hsv(self) -> np.ndarray:
         if self._hsv is None:
             self._hsv = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2HSV)
-            # thesis 4.2.1.2: S >= 51 and V >= 51 -> colour bins; otherwise brightness bins
-            self._colour = cv2.inRange(self._hsv, (0, SV_MIN, SV_MIN), (255, 255, 255))
-            self._dark = cv2.bitwise_not(self._colour)
         return self._hsv
+
+    def colour_index(self) -> np.ndarray:
+        """Per pixel its bin of a half colour histogram (uint8, 0..107), once per frame.
+
+        thesis 4.2.1.2: S >= 51 and V >= 51 -> HS bin ``10 hue_bin + sat_bin``; otherwise the
+        brightness bin ``100 + v_bin``. With a = 10 hue_bin, b = sat_bin (255 when S < 51),
+        c = 100 + v_bin (+128 when V < 51): index = min(a + b + (c & 128), c & 127), the sum
+        saturating at 255 (an HS bin is < 100 <= every brightness bin)."""
+        if self._index is None:
+            lut_h, lut_s, lut_v = _colour_luts()
+            shape = (self.height, self.width)
+            hsv = self._hsv  # when a verifier has asked for it; otherwise a work array
+            if hsv is None:
+                hsv = _scratch("hsv", (*shape, 3), np.uint8)
+                cv2.cvtColor(self.bgr, cv2.COLOR_BGR2HSV, dst=hsv)
+            h, s, v = planes = _scratch("hsv_planes", (3, *shape), np.uint8)
+            cv2.split(hsv, list(planes))
+            a, b, c = _scratch("hsv_bins", (3, *shape), np.uint8)
+            cv2.LUT(h, lut_h, dst=a)
+            cv2.LUT(s, lut_s, dst=b)
+            cv2.LUT(v, lut_v, dst=c)
+            # (numpy for the constants: OpenCV takes a 1 x 1 image for a scalar)
+            cv2.add(a, b, dst=a)  # saturating: 255 unless S >= 51
+            np.bitwise_and(c, np.uint8(0x80), out=b)
+            cv2.add(a, b, dst=a)  # 255 unless S >= 51 and V >= 51
+            np.bitwise_and(c, np.uint8(0x7F), out=c)
+            self._index = np.minimum(a, c)
+        return self._index
 
     def grey(self) -> np.ndarray:
         if self._grey is None:
             self._grey = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2GRAY)
         return self._grey
 
-    def gradients(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._mag is None:
-            grey = self.grey()
-            gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)  # thesis 3.3.1.2: S_x
-            gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)  # thesis 3.3.1.2: S_y
-            # eq. 3-4 and 3-5: magnitude and orientation, the latter mapped to [0, 360) deg
-            self._mag, self._ang = cv2.cartToPolar(gx, gy, angleInDegrees=True)
-        return self._mag, self._ang
-
     def colour(self, rect: Rect) -> np.ndarray:
         """216-bin HS colour histogram of ``rect`` (float32, sums to 1)."""
-        hsv = self.hsv()
+        index = self.colour_index()
         x0, y0, x1, y1 = rect
         mid = (y0 + y1) // 2
         out = np.zeros(COLOUR_BINS, dtype=np.float32)
+        if x1 <= x0:
+            return out
         for k, (a, b) in enumerate(((y0, mid), (mid, y1))):
             if b <= a:
                 continue
-            part = hsv[a:b, x0:x1]
             seg = out[k * HALF_BINS : (k + 1) * HALF_BINS]
-            hs = cv2.calcHist(
-                [part], [0, 1], self._colour[a:b, x0:x1], [N_HUE, N_SAT], [0, 180, 0, 256]
-            )
-            val = cv2.calcHist([part], [2], self._dark[a:b, x0:x1], [N_VAL], [0, 256])
-            seg[: N_HUE * N_SAT] = hs.ravel()
-            seg[N_HUE * N_SAT :] = val.ravel()
+            part = index[a:b, x0:x1]
+            cv2.calcHist([part], [0], None, [HALF_BINS], [0, HALF_BINS], hist=seg.reshape(-1, 1))
             total = float(seg.sum())
             if total > 0:
                 seg *= 0.5 / total  # each half sums to 1, then both scaled by 0.5
         return out
 
+    def _polar(self, box: Rect, m: np.ndarray, ang: np.ndarray) -> None:
+        """Gradient magnitude and orientation (deg) of ``box`` into ``m`` and ``ang``."""
+        x0, y0, x1, y1 = box
+        # the box grown by a pixel where the frame has one: Sobel sees real neighbours there,
+        # and reflects only at the frame's own border, like a whole-frame Sobel
+        gx0, gy0 = max(0, x0 - 1), max(0, y0 - 1)
+        grown = self.grey()[gy0 : min(self.height, y1 + 1), gx0 : min(self.width, x1 + 1)]
+        cut = (slice(y0 - gy0, y1 - gy0), slice(x0 - gx0, x1 - gx0))
+        sx, sy = _scratch("sobel", (2, *grown.shape), np.int16)
+        cv2.spatialGradient(grown, sx, sy)  # thesis 3.3.1.2: S_x, S_y (3 x 3 Sobel)
+        gx, gy = _scratch("gxy", (2, y1 - y0, x1 - x0), np.float32)
+        np.copyto(gx, sx[cut])  # exact integers: the same as a float32 Sobel
+        np.copyto(gy, sy[cut])
+        # eq. 3-4 and 3-5: magnitude and orientation in [0, 360) deg
+        cv2.cartToPolar(gx, gy, magnitude=m, angle=ang, angleInDegrees=True)
+
+    def share_gradients(self, rects: Sequence[Rect]) -> None:
+        """Compute the gradients of the bounding box of ``rects`` once, for :meth:`edges`, when
+        the rectangles overlap so much (their areas add up to over 1.5 times the box's) that
+        this is cheaper than each rectangle's own. The histograms are the same either way."""
+        if len(rects) < 2:
+            return
+        bx0, by0 = min(r[0] for r in rects), min(r[1] for r in rects)
+        bx1, by1 = max(r[2] for r in rects), max(r[3] for r in rects)
+        area = sum((r[2] - r[0]) * (r[3] - r[1]) for r in rects)
+        if area <= 1.5 * (bx1 - bx0) * (by1 - by0):
+            return
+        m, ang = np.empty((2, by1 - by0, bx1 - bx0), dtype=np.float32)  # kept with the frame
+        self._polar((bx0, by0, bx1, by1), m, ang)
+        self._block = ((bx0, by0, bx1, by1), m, ang)
+
     def edges(self, rect: Rect) -> np.ndarray:
         """72-bin edge-orientation histogram of ``rect`` (float32, sums to 1 or all zero)."""
-        mag, ang = self.gradients()
         x0, y0, x1, y1 = rect
-        m = mag[y0:y1, x0:x1]
-        peak = float(m.max()) if m.size else 0.0
+        if x1 <= x0 or y1 <= y0:
+            return np.zeros(EDGE_BINS, dtype=np.float32)
+        block = self._block
+        if block is not None and _inside(rect, block[0]):
+            bx0, by0 = block[0][:2]
+            roi = (slice(y0 - by0, y1 - by0), slice(x0 - bx0, x1 - bx0))
+            m, ang = block[1][roi], block[2][roi]
+        else:
+            m, ang = _scratch("polar", (2, y1 - y0, x1 - x0), np.float32)
+            self._polar(rect, m, ang)
+        peak = float(m.max())
         if peak <= 0.0:
             return np.zeros(EDGE_BINS, dtype=np.float32)
-        mask = (m > EDGE_FRACTION * peak).view(np.uint8)  # eq. 4-3: 0.4 Mag_max
-        hist = cv2.calcHist([ang[y0:y1, x0:x1]], [0], mask, [EDGE_BINS], [0, 360]).ravel()
+        strong = _scratch("strong", m.shape, np.bool_)
+        np.greater(m, np.float32(EDGE_FRACTION * peak), out=strong)  # eq. 4-3: 0.4 Mag_max
+        hist = cv2.calcHist([ang], [0], strong.view(np.uint8), [EDGE_BINS], [0, 360])[:, 0]
         total = float(hist.sum())
         return hist / total if total > 0 else hist
 
     def histograms(self, rect: Rect) -> dict[str, np.ndarray]:
         return {"colour_hs": self.colour(rect), "edge_orientation": self.edges(rect)}
+
+
+def _inside(rect: Rect, box: Rect) -> bool:
+    return box[0] <= rect[0] and box[1] <= rect[1] and rect[2] <= box[2] and rect[3] <= box[3]
 
 
 def colour_histogram(bgr: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ Bad input (image of the wrong size for its camera, unknown camera, corrupt JPEG,
 behind the camera or with empty or huge rectangles) is skipped and counted (Health.rejected
 for images, Health.notes for the rest), never fatal.
 
-    followbot run vision_verify --set verifier=meanshift --set threshold=0.9
+    followbot run vision_verify --set verifier=meanshift --set threshold=0.7
 """
 
 from __future__ import annotations

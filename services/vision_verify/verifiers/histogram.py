@@ -7,10 +7,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import cv2
 import msgspec
 import numpy as np
 
-from ..core import ImageFeatures, Model, Rect, View, bhattacharyya
+from ..core import COLOUR_BINS, EDGE_BINS, ImageFeatures, Model, Rect, View, bhattacharyya
 
 __all__ = ["HistogramSettings", "HistogramVerifier"]
 
@@ -49,6 +50,30 @@ class HistogramVerifier:
     ) -> list[float | None]:
         if "colour_hs" not in model.features or "edge_orientation" not in model.features:
             raise ValueError("the model has no colour_hs/edge_orientation features")
+        # the model's side of bhattacharyya() once, then one compareHist per histogram
+        colour = _model_side(model.features["colour_hs"], COLOUR_BINS)
+        edges = _model_side(model.features["edge_orientation"], EDGE_BINS)
+        wc, we = self.settings.colour_weight, self.settings.edge_weight
+        frame.share_gradients([v.rect for v in views if v.ok])
         return [
-            self.distance(frame.histograms(v.rect), model.features) if v.ok else None for v in views
+            wc * _to_model(frame.colour(v.rect), colour)
+            + we * _to_model(frame.edges(v.rect), edges)
+            if v.ok
+            else None
+            for v in views
         ]
+
+
+def _model_side(q: np.ndarray, bins: int) -> np.ndarray | None:
+    """The model histogram as compareHist wants it (float32, contiguous); None when empty."""
+    if q.shape != (bins,):
+        raise ValueError(f"model histogram has shape {q.shape}, expected ({bins},)")
+    q = np.ascontiguousarray(q, dtype=np.float32)
+    return q if q.sum() > 0 else None
+
+
+def _to_model(p: np.ndarray, q: np.ndarray | None) -> float:
+    """:func:`bhattacharyya` (p, q) for a float32 histogram ``p`` of ImageFeatures."""
+    if q is None or not p.any():
+        return 1.0  # an empty histogram is at distance 1
+    return min(1.0, max(0.0, cv2.compareHist(p, q, cv2.HISTCMP_BHATTACHARYYA)))
