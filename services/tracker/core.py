@@ -245,6 +245,8 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
+    rollback_max_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """Farthest back (scan time before the rejected scan) a rollback goes."""
     rollback_jump_m: Annotated[float, msgspec.Meta(ge=0)] = 0.15
     """... only when that candidate also lay this far or farther from the target's prediction
     (0.15 m: 1.25 m/s over one 120 ms scan). The target itself, seen where it was expected
@@ -324,6 +326,7 @@ class Tracker:
         self.verifications_unmatched = 0
         self.target_switches = 0
         self.rollbacks = 0  # target tracks split by a rejecting verification
+        self._confirmed_index = -1  # last scan whose verification accepted the target's candidate
         self._now: tuple[int, Pose | None] = (0, None)
         self.steps_without_odometry = 0
 
@@ -530,6 +533,7 @@ class Tracker:
         if self.target_id >= 0 and tid != self.target_id:
             self.target_switches += 1
         self.target_id = tid
+        self._confirmed_index = self._index - 1  # chosen by vision (or a model) just now
         self._had_target = True
         self._lost_at = None
         self._switch = (-1, 0)
@@ -652,6 +656,7 @@ class Tracker:
             return  # not in view: no evidence either way
         if v.chosen >= 0 and v.candidates[v.chosen].index in mine:
             self._rejects = 0
+            self._confirmed_index = max(self._confirmed_index, scan.index)
             return
         if seen[0].distance <= v.threshold:
             return  # close enough, only another was closer: the switch votes decide
@@ -664,34 +669,56 @@ class Tracker:
             self._lose_target(self.tracks[self.target_id])
 
     def _rollback(self, stamp_k: int, scan: _Scan, taken: tuple[float, float]) -> None:
-        """Vision rejected what the target took at scan k: split the track (module doc)."""
-        prior = scan.target_prior
-        if prior is None or prior[0] != self.target_id or self.target_id not in self.tracks:
+        """Vision rejected what the target took at scan k: split the track (module doc).
+
+        The target goes back to before the first of its updates that vision has not
+        confirmed (at most ``rollback_max_s`` before scan k): a passer-by often pulls the
+        target a scan or two before vision sees the two apart, in scans it did not judge."""
+        tid = self.target_id
+        if tid not in self.tracks:
             return
-        tid, before = prior
-        jump = math.hypot(taken[0] - before.mean[0], taken[1] - before.mean[1])
-        if jump < self.settings.rollback_jump_m:
+        s = self.settings
+        start = None  # (stamp, scan) to go back to
+        for stamp_j, st in self._history.items():
+            if (
+                st.index > self._confirmed_index
+                and st.index <= scan.index
+                and st.target_prior is not None
+                and st.target_prior[0] == tid
+                and stamp_k - stamp_j <= s.rollback_max_s * _NS
+            ):
+                start = (stamp_j, st)
+                break
+        if start is None:
+            return
+        stamp_j, scan_j = start
+        before = scan_j.target_prior[1]
+        xy = np.array([taken])
+        if scan.pose is not None and scan_j.pose is not None:
+            xy = transform_points(xy, scan.pose, scan_j.pose)  # into scan j's frame
+        jump = math.hypot(xy[0, 0] - before.mean[0], xy[0, 1] - before.mean[1])
+        if jump < s.rollback_jump_m:
             return
         stamp_now, pose_now = self._now
         track = self.tracks[tid]
-        s = self.settings
-        # 1. what the target followed since scan k is somebody else: their own track
+        # 1. what the target followed since scan j is somebody else: their own track
         other = Track(self._next_id, track.estimator, track.born_ns)
         self._next_id += 1
         other.hits, other.misses = max(track.hits, s.confirm_hits), track.misses
         other.last_seen_ns = track.last_seen_ns
         self.tracks[other.id] = other
-        for st in self._history.values():  # scans k.. : those candidates were the other's
-            if st.index >= scan.index:
+        for st in self._history.values():  # scans j.. : those candidates were the other's
+            if st.index >= scan_j.index:
                 st.assoc = {c: other.id if t == tid else t for c, t in st.assoc.items()}
-                if st.target_prior is not None and st.index > scan.index:
-                    st.target_prior = None  # snapshots taken after the wrong update
-        # 2. the target as it was before scan k's update, carried to now
-        if scan.pose is not None and pose_now is not None:
-            rotation, translation = se2_change(scan.pose, pose_now)
+                if st.target_prior is not None and st.index > scan_j.index:
+                    st.target_prior = None  # snapshots taken after the wrong updates
+        scan_j.target_prior = None  # used: the target's new estimator is this snapshot
+        # 2. the target as it was before scan j's update, carried to now
+        if scan_j.pose is not None and pose_now is not None:
+            rotation, translation = se2_change(scan_j.pose, pose_now)
             before.ego_motion(rotation, translation)
-        misses = max(1, self._index - scan.index)
-        before.predict(min((stamp_now - stamp_k) / _NS, s.max_dt_s), misses)
+        misses = max(1, self._index - scan_j.index)
+        before.predict(min((stamp_now - stamp_j) / _NS, s.max_dt_s), misses)
         track.estimator = before
         track.misses = misses
         self.rollbacks += 1

@@ -517,6 +517,44 @@ def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(r
         assert max(errors) > 0.25  # the estimate went onto the passer-by
 
 
+def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
+    """A passer-by pulls the target in small steps: scan 3 (not judged by vision) 0.14 m,
+    scan 4 another 0.12 m; vision rejects scan 4. Measured from scan 4's prediction that is
+    no jump, from the last confirmed state (scan 2) it is 0.26 m: the target goes back there."""
+    trk = Tracker(TrackerSettings())
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    path = {1: (2.0, 0.0), 2: (2.0, 0.0), 3: (1.88, 0.08), 4: (1.78, 0.14), 5: (1.7, 0.3)}
+    for k in range(1, 7):
+        still_robot(trk, k * SCAN_NS)
+        points = [path[k]] if k in path else []
+        if k >= 5:
+            points.append((2.0, 0.0))  # the target is seen again
+        target, _ = trk.step(cands_multi(k * SCAN_NS, points))
+        if k == 3:
+            continue  # vision did not judge scan 3
+        ver = Verification(
+            stamp_ns=k * SCAN_NS,
+            image_stamp_ns=k * SCAN_NS,
+            model_id=1,
+            verifier="test",
+            candidates=[
+                VerifiedCandidate(
+                    index=i, x_m=x, y_m=y, in_view=True, distance=0.3 if x == 2.0 else 1.1
+                )
+                for i, (x, y) in enumerate(points)
+            ],
+            chosen=next((i for i, (x, _) in enumerate(points) if x == 2.0), -1),
+            threshold=0.8,
+        )
+        trk.add_verification(ver)
+    assert trk.rollbacks == 1
+    assert target.status == "tracking"
+    assert math.hypot(target.x_m - 2.0, target.y_m) < 0.1
+
+
 def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
     """Its look changed (turning round), its position did not jump: no rollback."""
     trk = Tracker(TrackerSettings())
