@@ -166,6 +166,7 @@ def run_scenario(
     }
     common = {"robot": robot, "zenoh": {"connect": [endpoint]}, "log_level": "warning"}
     stamps: dict[int, _Stamp] = {}
+    truth_ns = [0]  # newest truth stamp; the handlers (Zenoh threads) write, the loop reads
     writer = McapTopicWriter(out_dir / "run.mcap", robot) if record else None
     session = open_session(ZenohSettings(listen=[endpoint]))
     node = Node("eval", NodeSettings(robot=robot, health_period_s=3600), ZenohBus(session))
@@ -180,6 +181,7 @@ def run_scenario(
             st = stamps.setdefault(msg.stamp_ns, _Stamp())
             if topic == "sim/truth":
                 st.truth = msg
+                truth_ns[0] = max(truth_ns[0], msg.stamp_ns)
             elif topic == "sensors/scan":
                 st.scan_at = now
             else:
@@ -207,8 +209,8 @@ def run_scenario(
                 raise RunError(f"{name} / {preset}: no end after {timeout_s:.0f} s")
             node.spin_once()
             if progress:
-                done = max((s for s, v in stamps.items() if v.truth is not None), default=0)
-                sim_s = done / 1e9
+                # not a scan of `stamps`: a handler may add to it meanwhile (this crashed)
+                sim_s = truth_ns[0] / 1e9
                 if sim_s - last_shown >= 1.0:
                     last_shown = sim_s
                     progress_line.show(

@@ -118,6 +118,35 @@ def test_lockstep_runs_and_the_track_of_their_recording_give_the_same_tracks(tmp
     assert a == b, first_difference(a, b)
 
 
+@pytest.mark.multiprocess
+def test_two_lockstep_runs_with_vision_give_the_same_tracks(tmp_path):
+    """With vision as its own process too: verifications, tracks and commands alike, run to run
+    (vision pairs each scan with the image due at it, whichever arrives first)."""
+    from followbot.runner import run_scenario
+
+    builtin = resources.files("followbot.services.sim").joinpath("scenarios")
+    spec = yaml.safe_load(builtin.joinpath("thesis_5_2_4_two_people.yaml").read_text())
+    spec["duration_s"] = 9.0  # acquisition at ~3 s, the crossing at ~6 s
+    scenario = tmp_path / "two_people_9s.yaml"
+    scenario.write_text(yaml.safe_dump(spec))
+    runs = [
+        run_scenario(str(scenario), "thesis", tmp_path / name, progress=False, record=False)
+        for name in ("a", "b")
+    ]
+
+    def answers(run):
+        out = {}
+        for r in run.records:
+            for name in ("verification", "target", "people", "cmd"):
+                m = getattr(r, name)
+                out[(r.stamp_ns, name)] = None if m is None else msgspec.structs.replace(m, seq=0)
+        return out
+
+    a, b = answers(runs[0]), answers(runs[1])
+    assert any(v is not None and v.chosen >= 0 for (_, n), v in a.items() if n == "verification")
+    assert a == b, next(k for k in a if a[k] != b.get(k))
+
+
 def test_odometry_goes_out_before_the_scan_it_brackets():
     """Rule 5: a scan is sent once odometry stamped at or after it has gone out."""
     from followbot.schemas import Image, LaserScan, Odometry

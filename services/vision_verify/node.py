@@ -121,18 +121,27 @@ class VisionVerify:
         self.model_id = 0
         self.frames: list[_Frame] = []  # the two newest decoded images, oldest first
         self.period_ns = 0  # camera period estimate
+        self.min_period_ns = 0  # shortest gap between two images (lock-step: when one is due)
         self.pending: OrderedDict[int, tuple[PersonCandidates, float]] = OrderedDict()
         self.last_judged_ns = -1
         self.counts: dict[str, int] = {}
         self.builder: ModelBuilder | None = None
         self.acquire_deadline = 0.0
         self.scans: OrderedDict[int, np.ndarray] = OrderedDict()  # acquisition only
+        # lock-step acquisition: images wait here so the builder sees every input in stamp order
+        self.acq_images: list[tuple[int, np.ndarray, float]] = []
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
         self.model_dirty = False
 
         self.pub_verification = node.publisher("perception/verification")
         self.pub_model = node.publisher("perception/target_model", reliable=True, serve_last=True)
-        self.in_image = node.subscribe("sensors/image", self.on_image, policy="latest")
+        # lock-step: every image (none dropped by a busy loop), so reruns see the same frames
+        self.in_image = node.subscribe(
+            "sensors/image",
+            self.on_image,
+            policy="all" if settings.answer_every_scan else "latest",
+            capacity=8,
+        )
         self.in_candidates = node.subscribe(
             "perception/candidates", self.on_candidates, capacity=256, dispatch="loop"
         )
@@ -181,9 +190,17 @@ class VisionVerify:
             if dt <= 0:
                 return self._bad_image("out_of_order")
             self.period_ns = dt if self.period_ns == 0 else round(0.8 * self.period_ns + 0.2 * dt)
+            self.min_period_ns = dt if self.min_period_ns == 0 else min(self.min_period_ns, dt)
         self.frames = [*self.frames[-1:], _Frame(img.stamp_ns, ImageFeatures(px), img.pan_rad, cam)]
         if self.builder is not None:
-            self._acquired(self.builder.add_image(img.stamp_ns, np.array(px), img.pan_rad))
+            if self.s.answer_every_scan:
+                self.acq_images = [
+                    *self.acq_images[-15:],
+                    (img.stamp_ns, np.array(px), img.pan_rad),
+                ]
+                self._feed_builder()
+            else:
+                self._acquired(self.builder.add_image(img.stamp_ns, np.array(px), img.pan_rad))
         self.work()
 
     def _bad_image(self, why: str) -> None:
@@ -227,6 +244,16 @@ class VisionVerify:
                 self._drop(stamp, "scan_stale")
                 continue
             if latest_img is None:
+                continue
+            if (
+                self.s.answer_every_scan
+                and self.min_period_ns
+                and latest_img + self.min_period_ns <= stamp
+            ):
+                # Lock-step: an image due at or before this scan may still be on its way (it
+                # comes straight from the source, the candidates through laser_legs, and the
+                # two arrive in either order); judging now would pair another image than a
+                # rerun might. Wait for it (bounded by image_wait_s, then dropped).
                 continue
             if (
                 stamp > latest_img
@@ -391,6 +418,7 @@ class VisionVerify:
         self.acquire_deadline = time.monotonic() + self.s.acquire_timeout_s
         self.scans.clear()
         self.acq_cands.clear()
+        self.acq_images.clear()
         self.node.log.info("acquiring a target model: the target should move alone")
 
     def _image_size(self) -> tuple[int, int]:
@@ -412,6 +440,16 @@ class VisionVerify:
         while len(self.acq_cands) > 16:
             self.acq_cands.popitem(last=False)
         for stamp in sorted(set(self.scans) & set(self.acq_cands)):
+            if self.s.answer_every_scan:
+                # lock-step: the images up to this scan first, in order; if one that is due
+                # has not come yet, wait for it (on_image calls back here)
+                latest = self.frames[-1].stamp_ns if self.frames else None
+                if latest is None or (self.min_period_ns and latest + self.min_period_ns <= stamp):
+                    return
+                while self.acq_images and self.acq_images[0][0] <= stamp:
+                    t, px, pan = self.acq_images.pop(0)
+                    if self.builder is not None:
+                        self._acquired(self.builder.add_image(t, px, pan))
             ranges = self.scans.pop(stamp)
             cands = self.acq_cands.pop(stamp)
             if self.builder is not None:

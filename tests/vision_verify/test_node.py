@@ -128,6 +128,21 @@ def test_waits_for_the_nearest_image_then_pairs(model_file):
     assert v.image_stamp_ns == t + 10_000_000
 
 
+def test_lock_step_pairs_the_scan_with_its_own_image_whatever_comes_first(model_file):
+    """Candidates of scan k may arrive before image k (they come through laser_legs): in
+    lock-step the scan waits for the image that is due, so reruns pair the same frames."""
+    rig = loaded(model_file, answer_every_scan=True, image_wait_s=5.0)
+    px, pan, cands, _ = crossing_frame()
+    t = cands.stamp_ns
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t - 200_000_000, pan_rad=pan))
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t - 100_000_000, pan_rad=pan))
+    rig.put("perception/candidates", cands)  # image t is due but not here yet
+    assert rig.verifications() == []
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=t, pan_rad=pan))
+    (v,) = rig.verifications()
+    assert v.stamp_ns == t and v.image_stamp_ns == t
+
+
 def test_stale_scans_are_dropped_not_queued(model_file):
     rig = loaded(model_file, max_lag_s=0.3)
     px, pan, cands, _ = crossing_frame()
