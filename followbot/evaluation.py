@@ -73,8 +73,10 @@ Verification accuracy (``verification_*``)
 ``reacquire_s``
     An occlusion episode is a maximal run of scans with the target not visible to the laser,
     at least ``min_occlusion_s`` long (default 0.2 s, so a one-scan dropout at 8-10 Hz is not
-    an occlusion; first hidden stamp to first visible-again stamp), with the target visible
-    before and after it. Its re-acquisition time is from the stamp of the
+    an occlusion; first hidden stamp to first visible-again stamp), with the target tracked
+    (visible, e_k <= 0.5 m) at some time before it and visible after it: an occlusion before
+    the target was first acquired is not one it can be *re*-acquired after (the time to the
+    first acquisition is ``acquired_s``). Its re-acquisition time is from the stamp of the
     first visible-again scan to the first later scan where the target is visible and tracked
     with e_k <= 0.5 m. ``reacquire_s_episodes`` lists them (null: never re-acquired before
     the end of the run, also counted in ``reacquire_failures``); ``reacquire_s`` is the mean
@@ -366,7 +368,7 @@ def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str
     seen = False
     while k < n:
         if vis[k]:
-            seen = True
+            seen = seen or ok[k]  # tracked before: an occlusion from now on is re-acquisition
             k += 1
             continue
         start = k

@@ -276,6 +276,14 @@ def test_immediate_reacquisition_is_zero_and_mean_over_episodes():
     assert m["reacquire_s"] == pytest.approx(0.05)
 
 
+def test_an_occlusion_before_the_first_acquisition_is_no_reacquisition():
+    vis = "vvv" + "....." + "vvvvvv" + "....." + "vvvv"
+    trk = "..." + "....." + "..yyyy" + "....." + ".yyy"  # first tracked after the 1st
+    m = compute_metrics(_occlusion_run(vis, trk))
+    assert m["occlusions"] == 1
+    assert m["reacquire_s_episodes"] == [pytest.approx(0.1)]
+
+
 def test_never_reacquired_and_dropouts_and_edges():
     # hidden at the start (never seen yet) and at the end (never seen again): no episodes;
     # a one-scan dropout (0.1 s) is shorter than min_occlusion_s (0.2 s): no episode;
