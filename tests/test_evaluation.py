@@ -265,6 +265,15 @@ def test_occlusion_then_reacquisition():
     assert m["reacquire_s"] == pytest.approx(0.3)
     assert m["reacquire_failures"] == 0
     assert m["tracked_visible_share"] == pytest.approx(17 / 20)
+    assert m["tracked_visible_share_acquired"] == pytest.approx(17 / 20)  # tracked at once
+
+
+def test_tracked_share_from_the_first_acquisition_leaves_out_the_learning_time():
+    vis = "v" * 20
+    trk = "." * 5 + "y" * 10 + "." * 5
+    m = compute_metrics(_occlusion_run(vis, trk))
+    assert m["tracked_visible_share"] == pytest.approx(10 / 20)
+    assert m["tracked_visible_share_acquired"] == pytest.approx(10 / 15)
 
 
 def test_immediate_reacquisition_is_zero_and_mean_over_episodes():
@@ -514,9 +523,9 @@ def test_single_preset_report_has_one_results_table(tmp_path):
     text = write_report(runs, tmp_path, plots=False).read_text()
     assert "## Results" in text
     assert "## Presets side by side" not in text
-    assert "| scenario | acq. s | tracked | RMSE m | ID sw. |" in text
-    assert "| a | 0 | 1 | 0.1 | 0 |" in text  # tracked from the first scan
-    assert "| b | 0 | 1 | 0.1 | 0 |" in text
+    assert "| scenario | acq. s | tracked | tr. acq. | RMSE m | ID sw. |" in text
+    assert "| a | 0 | 1 | 1 | 0.1 | 0 |" in text  # tracked from the first scan
+    assert "| b | 0 | 1 | 1 | 0.1 | 0 |" in text
 
 
 def test_plot_run_with_gaps_switches_and_no_latency(tmp_path):
