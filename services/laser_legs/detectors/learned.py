@@ -1,16 +1,36 @@
-"""A learned leg classifier: random trees (OpenCV ``cv2.ml.RTrees``) on per-cluster shape
-features — beyond the seeds (issue 4). In the spirit of Arras et al. (ICRA 2007) and the
-leg_tracker project whose recordings we evaluate on.
+"""A learned leg classifier: random trees (OpenCV ``cv2.ml.RTrees``) on segment features —
+beyond the seeds (issue 4). In the spirit of Arras et al. (ICRA 2007) and the leg_tracker
+project whose recordings we evaluate on; our own feature set and code.
 
-1. Segments: consecutive valid beams whose points are closer than ``cluster_gap_m``
-   (Euclidean, so the criterion means the same at any range), with ``min_points`` or more
-   points and an end-to-end width up to ``max_width_m``.
-2. Features of each segment (:data:`FEATURES`): point count, width, range, line-fit and
-   circle-fit residuals, fitted radius, boundary length and regularity, inscribed-angle mean
-   and spread, principal-axis ratio, mean distance to the centroid, and the range steps to the
-   neighbouring beams on both sides (is the segment in front of its background?).
-3. The forest's vote share for "leg" is the leg's confidence; legs above ``threshold`` are
-   paired as in the thesis (500 mm, closest first) into persons.
+1. Segments (:func:`segments`): runs of consecutive valid beams whose neighbouring points are
+   closer than ``cluster_gap_m`` (Euclidean, so the criterion means the same at any range),
+   with ``min_points`` or more points and an end-to-end width up to ``max_width_m``.
+2. Features of each segment (:data:`FEATURES`, :func:`segment_features`), all computed for
+   every segment at once with numpy (no loop over segments):
+
+   * shape: point count, end-to-end width, range of the centroid, RMS and mean distance to
+     the centroid, line-fit residual (square root of the scatter matrix's minor eigenvalue),
+     axis ratio, Kasa circle fit (radius capped at 1 m, RMS residual), boundary length and
+     regularity (std of the point-to-point steps), inscribed angles (mean, std), chord depth
+     (mean and largest signed distance of the points from the chord, positive towards the
+     laser: a leg bulges towards it, a room corner away), obliqueness (width over the arc the
+     beams sweep at that range: 1 for a surface facing the laser, more for a grazing one);
+   * background and occlusion: the range steps to the beams just outside the segment on both
+     sides (positive: background behind; negative: something in front, the segment is partly
+     occluded), as the smaller and the larger of the two so that the laser's turning direction
+     does not matter (a beam without return counts as far, steps capped at ±2 m);
+   * context: distance to the nearest other segment, its width and point count, how many
+     segments lie within 1 m and within 0.6 m, and — when the nearest segment lies within
+     0.6 m, a possible second leg — its circle and line residuals, radius, chord depth,
+     larger background step and range difference (else sentinel values).
+
+3. The forest's vote share for "leg" is each segment's score. Legs are paired as in the thesis
+   (500 mm, closest first) among the segments scoring at least ``min(threshold,
+   pair_threshold)``; a two-leg person is kept when both its legs score ``pair_threshold`` or
+   more, a single leg (also one of a rejected pair) when it scores ``threshold`` or more. So a
+   weaker leg is accepted next to a second leg, and a lone strong leg is still a person
+   candidate. Both thresholds are chosen by ``train.py`` with cross-validation inside the
+   training split.
 
 The model file ships with the package (``services/laser_legs/models/``); it is produced by
 ``python -m followbot.services.laser_legs.train`` (reproducible: fixed seeds, documented data
@@ -29,13 +49,14 @@ import numpy as np
 
 from followbot.schemas import LaserScan, Leg, PersonCandidates
 
-from ..core import Prediction, candidates_message, pair_legs, person, valid_mask
+from ..core import Prediction, beam_geometry, candidates_message, pair_legs, person, valid_mask
 
 __all__ = [
     "FEATURES",
     "LearnedSettings",
     "RandomTreesLegDetector",
     "default_model_path",
+    "features_and_centroids",
     "segment_features",
     "segments",
 ]
@@ -44,21 +65,47 @@ FEATURES = (
     "n_points",
     "width_m",
     "range_m",
+    "rms_spread_m",
+    "mean_spread_m",
     "line_residual_m",
-    "circle_residual_m",
+    "axis_ratio",
     "circle_radius_m",
+    "circle_residual_m",
     "boundary_length_m",
     "boundary_regularity_m",
     "inscribed_mean_rad",
     "inscribed_std_rad",
-    "axis_ratio",
-    "spread_m",
-    "step_before_m",
-    "step_after_m",
+    "chord_depth_m",
+    "chord_depth_max_m",
+    "obliqueness",
+    "step_min_m",
+    "step_max_m",
+    "neighbour_distance_m",
+    "neighbour_width_m",
+    "neighbour_points",
+    "segments_within_1m",
+    "segments_within_0_6m",
+    "neighbour_circle_residual_m",
+    "neighbour_line_residual_m",
+    "neighbour_circle_radius_m",
+    "neighbour_chord_depth_m",
+    "neighbour_step_max_m",
+    "neighbour_range_diff_m",
+    "nearest_other_point_m",
+    "other_points_within_0_5m",
 )
 
-#: Range steps to the neighbours are capped here (a beam without return counts as far).
-_STEP_CAP_M = 2.0
+#: Range steps to the neighbouring beams are capped here (a beam without return counts as far).
+STEP_CAP_M = 2.0
+#: Context distances are capped here.
+CONTEXT_CAP_M = 3.0
+#: A nearest segment closer than this is described by the ``neighbour_*`` shape features.
+PARTNER_M = 0.6
+#: Circle radii are capped here (a straight segment's fit runs away).
+RADIUS_CAP_M = 1.0
+OBLIQUENESS_CAP = 10.0
+#: neighbour_* shape features when no segment lies within PARTNER_M.
+_NO_PARTNER = np.array([[-1.0], [-1.0], [-1.0], [-1.0], [-CONTEXT_CAP_M], [-CONTEXT_CAP_M]])
 
 MODEL_FILE = "learned_rtrees.yml.gz"
 
@@ -68,10 +115,16 @@ def default_model_path() -> Path:
 
 
 class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """Parameters of :class:`RandomTreesLegDetector`."""
+    """Parameters of :class:`RandomTreesLegDetector`.
+
+    The thresholds were chosen by ``train.py`` for the shipped model (cross-validation inside
+    the training split: the highest leg recall with at most 0.4 false persons per scan); a
+    model trained with other features or data needs its own.
+    """
 
     model_path: str = ""  # "" = the model shipped with the package
-    threshold: float = 0.65  # vote share for "leg": chosen by train.py (validation split)
+    threshold: float = 0.30  # vote share for a one-leg person (train.py, cross-validation)
+    pair_threshold: float = 0.20  # vote share of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
     max_width_m: float = 0.6
@@ -79,11 +132,12 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     gate_m: float = 0.400  # thesis 4.3.2 criterion 3, when a prediction is given
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.threshold <= 1.0:
-            raise ValueError("threshold must be in [0, 1]")
+        for name in ("threshold", "pair_threshold"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1]")
         if self.min_points < 3:
             raise ValueError("min_points must be >= 3")
-        for name in ("cluster_gap_m", "max_width_m", "gate_m"):
+        for name in ("cluster_gap_m", "max_width_m", "gate_m", "pair_distance_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
 
@@ -91,84 +145,212 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
 def segments(
     scan: LaserScan, cluster_gap_m: float = 0.13, min_points: int = 3, max_width_m: float = 0.6
 ):
-    """Segments of one scan: (starts, ends, x, y, r, valid) with inclusive beam spans."""
-    raw = scan.ranges_m().astype(np.float64)
+    """Segments of one scan: ``(starts, ends, x, y, r, valid)``, inclusive beam spans.
+
+    ``x``, ``y``, ``r`` are per beam (0 where a beam has no return), ``valid`` marks returns.
+    """
+    raw = scan.ranges_m()
     n = raw.shape[0]
-    valid = valid_mask(raw, scan.range_min_m, scan.range_max_m)
-    ang = scan.angles_rad()
+    valid = valid_mask(raw, scan.range_min_m, scan.range_max_m) & np.isfinite(raw)
+    _, cos, sin = beam_geometry(float(scan.angle_min_rad), float(scan.angle_increment_rad), n)
     r = np.where(valid, raw, 0.0)
-    x, y = r * np.cos(ang), r * np.sin(ang)
-    gap = np.hypot(np.diff(x), np.diff(y))
-    # a cut before beam k when beam k or k-1 has no return or the points are far apart
+    x = r * cos[:n]
+    y = r * sin[:n]
+    dx = x[1:] - x[:-1]
+    dy = y[1:] - y[:-1]
+    # a cut before beam k when beam k or k-1 has no return or their points are far apart
     cut = np.ones(n + 1, dtype=bool)
-    cut[1:n] = (gap >= cluster_gap_m) | ~valid[1:] | ~valid[:-1]
-    bounds = np.flatnonzero(cut)
+    cut[1:n] = (dx * dx + dy * dy >= cluster_gap_m * cluster_gap_m) | ~(valid[1:] & valid[:-1])
+    bounds = cut.nonzero()[0]
     starts, ends = bounds[:-1], bounds[1:] - 1
     keep = valid[starts] & (ends - starts + 1 >= min_points)
     starts, ends = starts[keep], ends[keep]
-    w = np.hypot(x[ends] - x[starts], y[ends] - y[starts])
-    keep = w <= max_width_m
+    keep = np.hypot(x[ends] - x[starts], y[ends] - y[starts]) <= max_width_m
     return starts[keep], ends[keep], x, y, r, valid
 
 
-def _step(r: np.ndarray, valid: np.ndarray, k: int, ref: float) -> float:
-    """Range of beam k minus ``ref`` (positive: the neighbour is behind), capped."""
-    if k < 0 or k >= r.shape[0] or not valid[k]:
-        return _STEP_CAP_M
-    return float(min(max(r[k] - ref, -_STEP_CAP_M), _STEP_CAP_M))
+def segment_features(
+    starts, ends, x, y, r, valid, increment_rad: float | None = None
+) -> np.ndarray:
+    """(k, len(FEATURES)) float32 features of the segments (see the module docstring).
+
+    ``increment_rad`` is the beam spacing (for ``obliqueness``); by default it is taken from
+    the bearings of the first two beams.
+    """
+    f, _, _ = features_and_centroids(starts, ends, x, y, r, valid, increment_rad)
+    return f
 
 
-def segment_features(starts, ends, x, y, r, valid) -> np.ndarray:
-    """(k, len(FEATURES)) float32 features of the segments."""
-    out = np.empty((len(starts), len(FEATURES)), dtype=np.float32)
-    for i, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
-        px, py = x[a : b + 1], y[a : b + 1]
-        n = b - a + 1
-        cx, cy = px.mean(), py.mean()
-        dx, dy = px - cx, py - cy
-        width = math.hypot(px[-1] - px[0], py[-1] - py[0])
-        # principal axes: line-fit residual is the minor axis' spread
-        sxx, syy, sxy = (dx * dx).mean(), (dy * dy).mean(), (dx * dy).mean()
-        tr, det = sxx + syy, sxx * syy - sxy * sxy
-        disc = math.sqrt(max(tr * tr / 4 - det, 0.0))
-        lam1, lam2 = tr / 2 + disc, max(tr / 2 - disc, 0.0)
-        line_res = math.sqrt(lam2)
-        axis_ratio = math.sqrt(lam2 / lam1) if lam1 > 1e-12 else 0.0
-        # algebraic circle fit (Kasa): x^2 + y^2 + D x + E y + F = 0, on centred points
-        A = np.column_stack([dx, dy, np.ones(n)])
-        rhs = -(dx * dx + dy * dy)
-        sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
-        ccx, ccy = -sol[0] / 2, -sol[1] / 2
-        rad2 = ccx * ccx + ccy * ccy - sol[2]
-        rad = math.sqrt(rad2) if rad2 > 0 else 0.0
-        rad = min(rad, 1.0)
-        circ_res = float(np.sqrt(np.mean((np.hypot(dx - ccx, dy - ccy) - rad) ** 2)))
-        steps = np.hypot(np.diff(px), np.diff(py))
-        # inscribed angles at interior points towards the end points
-        if n >= 3:
-            ax, ay = px[0] - px[1:-1], py[0] - py[1:-1]
-            bx, by = px[-1] - px[1:-1], py[-1] - py[1:-1]
-            ang = np.abs(np.arctan2(ax * by - ay * bx, ax * bx + ay * by))
-            ia_mean, ia_std = float(ang.mean()), float(ang.std())
+def _increment(x: np.ndarray, y: np.ndarray, r: np.ndarray, valid: np.ndarray) -> float:
+    ok = np.flatnonzero(valid[:-1] & valid[1:])
+    if ok.size == 0:
+        return math.radians(0.5)
+    i = int(ok[0])
+    return abs(math.atan2(y[i + 1], x[i + 1]) - math.atan2(y[i], x[i])) or math.radians(0.5)
+
+
+def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
+    """Features and centroids (cx, cy) of the segments."""
+    k = int(starts.shape[0])
+    if k == 0:
+        z = np.zeros(0)
+        return np.zeros((0, len(FEATURES)), dtype=np.float32), z, z
+    inc = _increment(x, y, r, valid) if increment_rad is None else abs(increment_rad)
+    cnt = ends - starts + 1
+    fc = cnt.astype(np.float64)
+    # every beam of every segment, with its segment index (segments are disjoint, ordered)
+    cid = np.repeat(np.arange(k), cnt)
+    first = np.cumsum(cnt) - cnt  # offset of each segment's first point in the gathered arrays
+    idx = np.arange(cid.shape[0]) - first[cid] + starts[cid]
+    px, py = x[idx], y[idx]
+    cx = np.bincount(cid, px, k) / fc
+    cy = np.bincount(cid, py, k) / fc
+    u = px - cx[cid]
+    v = py - cy[cid]
+    uu, vv = u * u, v * v
+    suu = np.bincount(cid, uu, k) / fc
+    svv = np.bincount(cid, vv, k) / fc
+    suv = np.bincount(cid, u * v, k) / fc
+    zz = uu + vv
+    mean_spread = np.bincount(cid, np.sqrt(zz), k) / fc
+    # scatter matrix eigenvalues: lam2 is the line fit's mean squared residual
+    tr = suu + svv
+    det = suu * svv - suv * suv
+    disc = np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
+    lam1 = 0.5 * tr + disc
+    lam2 = np.maximum(0.5 * tr - disc, 0.0)
+    line_res = np.sqrt(lam2)
+    axis_ratio = np.sqrt(lam2 / np.maximum(lam1, 1e-12))
+    # Kasa circle fit on centred points: [suu suv; suv svv] (uc, vc) = 0.5 (m(u zz), m(v zz)),
+    # r^2 = uc^2 + vc^2 + suu + svv
+    bu = 0.5 * np.bincount(cid, u * zz, k) / fc
+    bv = 0.5 * np.bincount(cid, v * zz, k) / fc
+    ok = det > 1e-14
+    sdet = np.where(ok, det, 1.0)
+    uc = np.where(ok, (bu * svv - bv * suv) / sdet, 0.0)
+    vc = np.where(ok, (bv * suu - bu * suv) / sdet, 0.0)
+    radius = np.sqrt(uc * uc + vc * vc + tr)
+    straight = ~ok | (radius > RADIUS_CAP_M)
+    radius[straight] = RADIUS_CAP_M
+    e = np.sqrt((u - uc[cid]) ** 2 + (v - vc[cid]) ** 2) - radius[cid]
+    circ_res = np.sqrt(np.bincount(cid, e * e, k) / fc)
+    circ_res = np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
+    # boundary: steps between consecutive points (one cumulative sum over the scan)
+    sx = x[1:] - x[:-1]
+    sy = y[1:] - y[:-1]
+    s2 = sx * sx + sy * sy
+    cs = np.zeros((2, s2.shape[0] + 1))
+    np.cumsum(np.sqrt(s2), out=cs[0, 1:])
+    np.cumsum(s2, out=cs[1, 1:])
+    nstep = fc - 1.0
+    blen = cs[0, ends] - cs[0, starts]
+    bmean = blen / nstep
+    breg = np.sqrt(np.maximum((cs[1, ends] - cs[1, starts]) / nstep - bmean * bmean, 0.0))
+    # end points A, B; inscribed angles at the interior points P: angle APB
+    ax, ay = x[starts], y[starts]
+    wx, wy = x[ends] - ax, y[ends] - ay
+    width = np.hypot(wx, wy)
+    inner = (idx != starts[cid]) & (idx != ends[cid])
+    icid = cid[inner]
+    qx, qy = px[inner], py[inner]
+    pax, pay = ax[icid] - qx, ay[icid] - qy
+    pbx, pby = pax + wx[icid], pay + wy[icid]
+    ang = np.abs(np.arctan2(pax * pby - pay * pbx, pax * pbx + pay * pby))
+    n_inner = np.maximum(fc - 2.0, 1.0)
+    ia_mean = np.bincount(icid, ang, k) / n_inner
+    ia_std = np.sqrt(np.maximum(np.bincount(icid, ang * ang, k) / n_inner - ia_mean**2, 0.0))
+    # chord depth: distance of each point from the line AB, positive on the laser's side
+    wn = np.maximum(width, 1e-9)
+    nx, ny = -wy / wn, wx / wn
+    nx, ny = np.where(nx * ax + ny * ay > 0, (-nx, -ny), (nx, ny))  # normal towards the laser
+    dep = nx[cid] * (px - ax[cid]) + ny[cid] * (py - ay[cid])
+    depth = np.bincount(cid, dep, k) / fc
+    depth_max = np.maximum.reduceat(dep, first)
+    rng = np.hypot(cx, cy)
+    obliq = np.minimum(width / np.maximum(nstep * inc * rng, 1e-6), OBLIQUENESS_CAP)
+    # range steps to the beams just outside the segment (no return or outside the scan: far)
+    n = r.shape[0]
+    rp = np.full(n + 2, np.inf)
+    np.copyto(rp[1:-1], r, where=valid)
+    # row 0: the beam before the first, row 1: the beam after the last (padded indices)
+    steps = rp[np.array([starts, ends + 2])] - r[np.array([starts, ends])]
+    np.maximum(steps, -STEP_CAP_M, out=steps)
+    np.minimum(steps, STEP_CAP_M, out=steps)
+    step_min = steps.min(axis=0)
+    step_max = steps.max(axis=0)
+    cols = [fc, width, rng, np.sqrt(tr), mean_spread, line_res, axis_ratio, radius, circ_res]
+    cols += [blen, breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
+    # context: the nearest other segment (complex points: one subtraction, one hypot)
+    cz = cx + 1j * cy
+    if k > 1:
+        dd = np.abs(cz[:, None] - cz)
+        dd.flat[:: k + 1] = np.inf  # not itself
+        j = dd.argmin(axis=1)
+        nd = dd[np.arange(k), j]
+        near = nd < CONTEXT_CAP_M
+        partner = nd < PARTNER_M
+        cols += [
+            np.minimum(nd, CONTEXT_CAP_M),
+            np.where(near, width[j], 0.0),
+            np.where(near, fc[j], 0.0),
+            np.count_nonzero(dd < 1.0, axis=1),
+            np.count_nonzero(dd < PARTNER_M, axis=1),
+        ]
+        # the partner's shape, or sentinels when there is none within PARTNER_M
+        shape = np.array([circ_res, line_res, radius, depth, step_max, rng])[:, j]
+        shape[5] -= rng
+        cols += list(np.where(partner, shape, _NO_PARTNER))
+    else:
+        cols += [CONTEXT_CAP_M, 0.0, 0.0, 0.0, 0.0, *_NO_PARTNER[:, 0].tolist()]
+    # free space around: the scan's other points (also those of walls and other wide segments)
+    vi = valid.nonzero()[0]
+    d2 = cx[:, None] - x[vi]  # squared distances, in place
+    d2 *= d2
+    dy2 = cy[:, None] - y[vi]
+    dy2 *= dy2
+    d2 += dy2
+    vpos = np.cumsum(valid) - 1  # column of each valid beam in d2
+    d2[cid, vpos[idx]] = np.inf  # a segment's own points do not count
+    cols += [
+        np.minimum(np.sqrt(d2.min(axis=1)), CONTEXT_CAP_M),
+        np.count_nonzero(d2 < 0.25, axis=1),
+    ]
+    if k > 1:  # every column an array of k values: one conversion
+        out = np.array(cols, dtype=np.float32)
+    else:
+        out = np.empty((len(cols), k), dtype=np.float32)
+        for i, c in enumerate(cols):
+            out[i] = c
+    out = np.ascontiguousarray(out.T)
+    return out, cx, cy
+
+
+def select_legs(
+    x: np.ndarray,
+    y: np.ndarray,
+    score: np.ndarray,
+    threshold: float,
+    pair_threshold: float,
+    pair_distance_m: float,
+) -> list[tuple[int, ...]]:
+    """Persons from scored legs: groups of indices into ``x``/``y``/``score``.
+
+    Legs scoring at least ``min(threshold, pair_threshold)`` are paired (thesis 4.3.3); a pair
+    is kept when both legs reach ``pair_threshold``, a lone leg (also one of a rejected pair)
+    when it reaches ``threshold``.
+    """
+    cand = np.flatnonzero(score >= min(threshold, pair_threshold)).tolist()
+    if not cand:
+        return []
+    s = score.tolist()
+    groups = pair_legs([float(x[i]) for i in cand], [float(y[i]) for i in cand], pair_distance_m)
+    out: list[tuple[int, ...]] = []
+    for g in groups:
+        legs = tuple(cand[i] for i in g)
+        if len(legs) == 2 and min(s[legs[0]], s[legs[1]]) >= pair_threshold:
+            out.append(legs)
         else:
-            ia_mean, ia_std = math.pi, 0.0
-        rng = math.hypot(cx, cy)
-        out[i] = (
-            n,
-            width,
-            rng,
-            line_res,
-            min(circ_res, 1.0),
-            rad,
-            float(steps.sum()),
-            float(steps.std()),
-            ia_mean,
-            ia_std,
-            axis_ratio,
-            float(np.hypot(dx, dy).mean()),
-            _step(r, valid, a - 1, float(r[a])),
-            _step(r, valid, b + 1, float(r[b])),
-        )
+            out.extend((i,) for i in legs if s[i] >= threshold)
     return out
 
 
@@ -201,33 +383,33 @@ class RandomTreesLegDetector:
         starts, ends, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
         if starts.shape[0] == 0:
             return candidates_message(scan, self.name, [])
-        feats = segment_features(starts, ends, x, y, r, valid)
+        inc = abs(float(scan.angle_increment_rad)) or math.radians(0.5)
+        feats, cx, cy = features_and_centroids(starts, ends, x, y, r, valid, inc)
         score = self.leg_scores(feats)
-        keep = np.flatnonzero(score >= s.threshold)
-        legs: list[Leg] = []
-        conf: list[float] = []
-        for i in keep.tolist():
-            a, b = int(starts[i]), int(ends[i])
-            lx, ly = float(x[a : b + 1].mean()), float(y[a : b + 1].mean())
-            if prediction is not None:
-                px, py = float(prediction[0]), float(prediction[1])
-                if (
-                    math.isfinite(px)
-                    and math.isfinite(py)
-                    and math.hypot(lx - px, ly - py) >= (s.gate_m)
-                ):
-                    continue
-            legs.append(Leg(x_m=lx, y_m=ly, first_beam=a, last_beam=b, width_m=float(feats[i, 1])))
-            conf.append(float(score[i]))
-        groups = pair_legs([g.x_m for g in legs], [g.y_m for g in legs], s.pair_distance_m)
-        out = [
-            person(
-                [legs[i] for i in g],
-                "two_legs" if len(g) == 2 else "one_leg",
-                min(1.0, max(conf[i] for i in g)),
-            )
-            for g in groups
-        ]
+        if prediction is not None:
+            px, py = float(prediction[0]), float(prediction[1])
+            if math.isfinite(px) and math.isfinite(py):
+                # thesis criterion 3: only segments near the tracked target
+                score = np.where(np.hypot(cx - px, cy - py) < s.gate_m, score, -1.0)
+        groups = select_legs(cx, cy, score, s.threshold, s.pair_threshold, s.pair_distance_m)
+        if not groups:
+            return candidates_message(scan, self.name, [])
+        width = feats[:, 1].tolist()
+        conf = score.tolist()
+        out = []
+        for g in groups:
+            legs = [
+                Leg(
+                    x_m=float(cx[i]),
+                    y_m=float(cy[i]),
+                    first_beam=int(starts[i]),
+                    last_beam=int(ends[i]),
+                    width_m=width[i],
+                )
+                for i in g
+            ]
+            pattern = "two_legs" if len(g) == 2 else "one_leg"
+            out.append(person(legs, pattern, min(1.0, max(conf[i] for i in g))))
         return candidates_message(scan, self.name, out)
 
 
@@ -273,12 +455,30 @@ def save_model(model, path: Path) -> None:
         model.save(str(path))
 
 
+def _tree_count(model) -> int:
+    """Number of trees (the saved term criteria do not survive loading): the votes of one
+    sample summed over the classes."""
+    cache = _TREES.get(id(model))
+    if cache is not None and cache[0] is model:
+        return cache[1]
+    n_vars = int(model.getVarCount())
+    votes = model.getVotes(np.zeros((1, n_vars), np.float32), 0)
+    count = int(votes[1:].sum())
+    _TREES[id(model)] = (model, count)
+    return count
+
+
+_TREES: dict[int, tuple[object, int]] = {}
+
+
 def vote_share(model, features: np.ndarray) -> np.ndarray:
-    """Share of the trees voting for class 1 ("leg")."""
-    votes = model.getVotes(np.ascontiguousarray(features, dtype=np.float32), 0)
-    # row 0 holds the class labels, the next rows the votes per sample
-    labels = votes[0]
-    counts = votes[1:].astype(np.float64)
-    total = counts.sum(axis=1)
-    pos = counts[:, labels == 1].sum(axis=1) if (labels == 1).any() else np.zeros(len(counts))
-    return np.where(total > 0, pos / np.maximum(total, 1), 0.0)
+    """Share of the trees voting for class 1 ("leg").
+
+    With class labels 0 and 1, ``DTREES_PREDICT_SUM`` sums the leaf values (the labels), i.e.
+    counts the trees voting 1 — about twice as fast as ``getVotes``.
+    """
+    import cv2
+
+    feats = np.ascontiguousarray(features, dtype=np.float32)
+    _, out = model.predict(feats, flags=cv2.ml.DTREES_PREDICT_SUM)
+    return out.ravel().astype(np.float64) / max(_tree_count(model), 1)
