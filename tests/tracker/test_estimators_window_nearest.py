@@ -32,6 +32,18 @@ DT = 0.12
 SCAN_NS = 120_000_000
 
 
+def scan_at(k, points):
+    """Candidates at ``points`` (x, y) in scan k."""
+    return PersonCandidates(
+        stamp_ns=k * SCAN_NS,
+        frame_id="base_laser",
+        candidates=[
+            Candidate(x_m=a, y_m=b, range_m=math.hypot(a, b), bearing_rad=math.atan2(b, a))
+            for a, b in points
+        ],
+    )
+
+
 def walk(est, steps, start, velocity, noise_m, seed=3):
     """Feed a constant-velocity walker to ``est``; the (estimate, truth) pairs after each update."""
     rng = np.random.default_rng(seed)
@@ -86,15 +98,7 @@ def test_selected_by_the_tracker_estimator_setting(name):
     for k in range(25):
         trk.add_odometry(Odometry(stamp_ns=k * SCAN_NS, x_m=0.0, y_m=0.0, yaw_rad=0.0))
         x, y = 2.0, -0.5 + 0.05 * k
-        target, people = trk.step(
-            PersonCandidates(
-                stamp_ns=k * SCAN_NS,
-                frame_id="base_laser",
-                candidates=[
-                    Candidate(x_m=x, y_m=y, range_m=math.hypot(x, y), bearing_rad=math.atan2(y, x))
-                ],
-            )
-        )
+        target, people = trk.step(scan_at(k, [(x, y)]))
     assert target.estimator == people.estimator == name
     assert target.status == "tracking" and target.track_id == 1
     assert abs(target.y_m - y) < 0.05 and abs(target.vy_mps - 0.05 / DT) < 0.1
@@ -228,16 +232,7 @@ def test_two_people_side_by_side_keep_their_own_kalman_tracks():
         trk.add_odometry(Odometry(stamp_ns=k * SCAN_NS, x_m=0.0, y_m=0.0, yaw_rad=0.0))
         x = 1.5 + 0.06 * k
         pts = [(x, -0.2), (x, 0.2)]
-        _, people = trk.step(
-            PersonCandidates(
-                stamp_ns=k * SCAN_NS,
-                frame_id="base_laser",
-                candidates=[
-                    Candidate(x_m=a, y_m=b, range_m=math.hypot(a, b), bearing_rad=math.atan2(b, a))
-                    for a, b in pts
-                ],
-            )
-        )
+        _, people = trk.step(scan_at(k, pts))
     assert sorted(t.id for t in people.tracks) == [1, 2]
     for t in people.tracks:
         assert abs(abs(t.y_m) - 0.2) < 0.02 and abs(t.vx_mps - 0.5) < 0.1
@@ -311,16 +306,7 @@ def test_nearest_with_the_seeds_rule_loses_the_target_at_the_first_miss():
     for k in range(6):
         trk.add_odometry(Odometry(stamp_ns=k * SCAN_NS, x_m=0.0, y_m=0.0, yaw_rad=0.0))
         pts = [] if k == 4 else [(2.0, 0.0)]
-        target, _ = trk.step(
-            PersonCandidates(
-                stamp_ns=k * SCAN_NS,
-                frame_id="base_laser",
-                candidates=[
-                    Candidate(x_m=a, y_m=b, range_m=math.hypot(a, b), bearing_rad=math.atan2(b, a))
-                    for a, b in pts
-                ],
-            )
-        )
+        target, _ = trk.step(scan_at(k, pts))
         statuses.append(target.status)
     assert statuses[1:4] == ["tracking"] * 3 and statuses[4] == "lost"
     # no vision: re-taken by the laser near where it was lost (the tracker's rule)

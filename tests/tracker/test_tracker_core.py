@@ -259,17 +259,19 @@ def model(stamp_ns, x, y):
     )
 
 
-def verification(stamp_ns, positions, chosen):
+def verification(stamp_ns, positions, chosen, distances=None, threshold=None):
+    distances = distances or [0.5] * len(positions)
     return Verification(
         stamp_ns=stamp_ns,
         image_stamp_ns=stamp_ns,
         model_id=1,
         verifier="test",
         candidates=[
-            VerifiedCandidate(index=i, x_m=x, y_m=y, in_view=True, distance=0.5)
-            for i, (x, y) in enumerate(positions)
+            VerifiedCandidate(index=i, x_m=x, y_m=y, in_view=True, distance=d)
+            for i, ((x, y), d) in enumerate(zip(positions, distances, strict=True))
         ],
         chosen=chosen,
+        threshold=threshold,
     )
 
 
@@ -466,6 +468,14 @@ def cands_multi(stamp_ns, points):
     return cands(stamp_ns, *points) if points else cands(stamp_ns)
 
 
+def judged_at_two(stamp_ns, points):
+    """Vision saw every candidate: the one at x = 2 m (the target) close to the model, the
+    others far from it."""
+    chosen = next((i for i, (x, _) in enumerate(points) if x == 2.0), -1)
+    distances = [0.3 if x == 2.0 else 1.1 for x, _ in points]
+    return verification(stamp_ns, points, chosen, distances, threshold=0.8)
+
+
 @pytest.mark.parametrize("rollback", [True, False])
 def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(rollback):
     """The target stands at (2, 0); a passer-by walks across in front of it and hides it for
@@ -490,22 +500,7 @@ def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(r
         target, people = trk.step(cands_multi(k * SCAN_NS, points))
         target_id = target_id or target.track_id
         errors.append(math.hypot(target.x_m - 2.0, target.y_m))
-        # vision sees every candidate: the target's is close to the model, the passer-by's not
-        ver = Verification(
-            stamp_ns=k * SCAN_NS,
-            image_stamp_ns=k * SCAN_NS,
-            model_id=1,
-            verifier="test",
-            candidates=[
-                VerifiedCandidate(
-                    index=i, x_m=x, y_m=y, in_view=True, distance=0.3 if x == 2.0 else 1.1
-                )
-                for i, (x, y) in enumerate(points)
-            ],
-            chosen=next((i for i, (x, _) in enumerate(points) if x == 2.0), -1),
-            threshold=0.8,
-        )
-        trk.add_verification(ver)
+        trk.add_verification(judged_at_two(k * SCAN_NS, points))
     if rollback:
         assert trk.rollbacks >= 1
         # the passer-by pulls the estimate for one scan at most (vision is one scan late)
@@ -535,21 +530,7 @@ def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
         target, _ = trk.step(cands_multi(k * SCAN_NS, points))
         if k == 3:
             continue  # vision did not judge scan 3
-        ver = Verification(
-            stamp_ns=k * SCAN_NS,
-            image_stamp_ns=k * SCAN_NS,
-            model_id=1,
-            verifier="test",
-            candidates=[
-                VerifiedCandidate(
-                    index=i, x_m=x, y_m=y, in_view=True, distance=0.3 if x == 2.0 else 1.1
-                )
-                for i, (x, y) in enumerate(points)
-            ],
-            chosen=next((i for i, (x, _) in enumerate(points) if x == 2.0), -1),
-            threshold=0.8,
-        )
-        trk.add_verification(ver)
+        trk.add_verification(judged_at_two(k * SCAN_NS, points))
     assert trk.rollbacks == 1
     assert target.status == "tracking"
     assert math.hypot(target.x_m - 2.0, target.y_m) < 0.1
