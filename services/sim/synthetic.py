@@ -2,11 +2,13 @@
 
 Publishes sensors/scan, sensors/odom and (optionally) sensors/image at chosen rates, with
 sequence numbers and wall-clock stamps, for as long as asked, in bounded memory. The scene is
-fixed and cheap to compute: a round room and one person walking a circle round a still robot,
-whose two legs alternate (so scans contain real leg arcs for a detector to find). Use the
-simulator (services/sim, issue 3) when you need ground truth and closed-loop control.
+fixed and cheap to compute: a round room and ``people`` walkers (default one) evenly spaced
+on one circle round a still robot, each with two alternating legs (so scans contain real leg
+arcs for a detector to find and a tracker to follow). Use the simulator (services/sim, issue 3)
+when you need ground truth and closed-loop control.
 
     followbot run synthetic --set scan_rate_hz=1000 --set count=100000
+    followbot run synthetic --set people=3 --set 'wait_for_stages=[laser_legs]'   # soak
 """
 
 from __future__ import annotations
@@ -41,6 +43,9 @@ class SyntheticSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     room_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 4.0
     walk_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
     walk_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.6
+    people: Annotated[int, msgspec.Meta(ge=0, le=16)] = 1
+    """Walkers on the circle, evenly spaced, all walking the same way (the image shows the
+    first)."""
     odom_rate_hz: _Rate = 50.0
     image_rate_hz: _Rate = 0.0
     image_width: Annotated[int, msgspec.Meta(ge=8, le=4096)] = 320
@@ -53,6 +58,11 @@ class SyntheticSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     """Hold back the first scan until someone subscribes to sensors/scan (at most this long)."""
     reliable: bool = False
     """Block rather than drop when the network is congested (a live sensor drops: False)."""
+    wait_for_stages: list[str] = []
+    """Also hold back the first scan until these services are alive (their liveliness tokens
+    seen), at most start_timeout_s: a subscriber elsewhere (a monitor) must not start the stream
+    before the stages that should see all of it are connected."""
+    start_timeout_s: Annotated[float, msgspec.Meta(ge=0)] = 10.0
 
 
 class SyntheticScene:
@@ -72,9 +82,16 @@ class SyntheticScene:
         self.rng = np.random.default_rng(settings.seed)
 
     def legs(self, t_s: float) -> np.ndarray:
-        """Centres (2x2) of the walker's legs at time ``t_s``: they swing alternately."""
+        """Centres (2 people x 2) of the walkers' legs at time ``t_s``: walker ``i`` is ``i /
+        people`` of a turn ahead on the circle; each one's legs swing alternately."""
+        n = self.s.people
+        if n == 0:
+            return np.empty((0, 2))
+        return np.concatenate([self._walker(t_s, 2 * math.pi * i / n) for i in range(n)])
+
+    def _walker(self, t_s: float, phase: float) -> np.ndarray:
         s = self.s
-        phi = s.walk_speed_mps / s.walk_radius_m * t_s
+        phi = s.walk_speed_mps / s.walk_radius_m * t_s + phase
         cos_phi, sin_phi = math.cos(phi), math.sin(phi)
         cx, cy = s.walk_radius_m * cos_phi, s.walk_radius_m * sin_phi  # centre of the walker
         hx, hy = -sin_phi, cos_phi  # heading (tangent of the circle)
@@ -109,7 +126,9 @@ class SyntheticScene:
         w, h = self.s.image_width, self.s.image_height
         img = np.empty((h, w, 3), np.uint8)
         img[:] = (np.arange(w, dtype=np.uint16)[None, :, None] * 200 // w).astype(np.uint8)
-        c = self.legs(t_s).mean(axis=0)
+        if self.s.people == 0:
+            return img
+        c = self.legs(t_s)[:2].mean(axis=0)
         bearing = math.atan2(c[1], c[0])
         f = (w / 2) / math.tan(math.radians(47.5 / 2))
         if c[0] > 0.1 and abs(bearing) < math.radians(47.5 / 2):
@@ -185,6 +204,8 @@ def setup(node: Node, settings: SyntheticSettings) -> SyntheticScene:
         node.log.info("waiting up to %.1f s for a scan subscriber", settings.wait_for_subscribers_s)
         if not node.wait_for_subscribers(scans, settings.wait_for_subscribers_s):
             node.log.warning("no scan subscriber yet; publishing anyway")
+    if settings.wait_for_stages:
+        _wait_for_stages(node, settings.wait_for_stages, settings.start_timeout_s)
     if settings.scan_rate_hz > 0:
         node.every(1.0 / settings.scan_rate_hz, publish_scan, name="scan")
     if settings.odom_rate_hz > 0:
@@ -192,6 +213,23 @@ def setup(node: Node, settings: SyntheticSettings) -> SyntheticScene:
     if settings.image_rate_hz > 0:
         node.every(1.0 / settings.image_rate_hz, publish_image, name="image")
     return scene
+
+
+def _wait_for_stages(node: Node, stages: list[str], timeout_s: float) -> None:
+    """Block until every service in ``stages`` is alive, ``timeout_s`` passes or the node stops
+    (the loop is not running yet, so liveliness is watched on the bus directly)."""
+    alive: set[str] = set()
+    for name in stages:
+        node.bus.watch_liveliness(
+            node.keys.alive(name), lambda _k, up, n=name: (alive.add if up else alive.discard)(n)
+        )
+    node.log.info("waiting up to %.1f s for %s", timeout_s, ", ".join(stages))
+    deadline = time.monotonic() + timeout_s
+    while not alive >= set(stages):
+        if node.stopping or time.monotonic() >= deadline:
+            node.log.warning("not alive yet: %s; publishing anyway", sorted(set(stages) - alive))
+            return
+        time.sleep(0.01)
 
 
 def main(argv: list[str] | None = None) -> int:
