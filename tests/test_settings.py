@@ -73,6 +73,8 @@ def test_zenoh_config_defaults_and_explicit_endpoints():
     assert conf.get_json("scouting/multicast/enabled") == "false"
     assert conf.get_json("transport/shared_memory/enabled") == "false"
     assert conf.get_json("transport/link/tx/lease") == "1000"
+    drop = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+    assert conf.get_json(drop) == "50000"  # microseconds; zenoh's own default is 1000
     assert "tcp/127.0.0.1:0" in conf.get_json("listen/endpoints")
     with pytest.raises(ValueError, match="connect/endpoints"):
         zenoh_config(ZenohSettings(connect=["not an endpoint"]))

@@ -42,6 +42,10 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     put("scouting/multicast/enabled", settings.multicast_scouting)
     put("transport/shared_memory/enabled", settings.shared_memory)
     put("transport/link/tx/lease", settings.lease_ms)
+    put(
+        "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
+        int(settings.drop_wait_ms * 1000),  # microseconds
+    )
     connect, listen = list(settings.connect), list(settings.listen)
     if not connect and not listen and not settings.config and settings.mode != "client":
         # The embedded default: one rendezvous port on loopback. Whoever starts first binds it
