@@ -239,9 +239,10 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     split_pair_m: Annotated[float, msgspec.Meta(ge=0)] = 0.4
     """A two-leg candidate whose legs are farther apart than this may be one leg each of two
     people (the thesis pairs legs up to 500 mm apart; when one of the target's legs is hidden
-    its other leg pairs with a passer-by's): a track may then take either leg alone, when that
-    leg is nearer its prediction than the pair's centre. 0: always the centre. In the
-    simulator a person's own legs were at most 0.36 m apart, such cross pairs 0.40-0.49 m."""
+    its other leg pairs with a passer-by's). When each leg lies in the gate of a different
+    track the pair is split, one leg to each; otherwise a track may take either leg alone
+    when that leg is nearer its prediction than the pair's centre. 0: always the centre. In
+    the simulator a person's own legs were at most 0.36 m apart, such cross pairs 0.40-0.49."""
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
@@ -409,11 +410,12 @@ class Tracker:
         # 4. associate
         cands = candidates.candidates
         z = np.array([[c.x_m, c.y_m] for c in cands], dtype=float).reshape(-1, 2)
-        points, starts = self._measurement_points(candidates, z)
+        # association units: a candidate, or one leg of a pair split between two tracks
+        unit_cand, points, starts = self._units(candidates, z)
         ids = list(self.tracks)
-        matched: dict[int, int] = {}  # track id -> candidate index
+        matched: dict[int, int] = {}  # track id -> unit index
         measured: dict[int, np.ndarray] = {}  # track id -> the point it is updated with
-        if ids and len(z):
+        if ids and len(unit_cand):
             cost_all = getattr(self._cls, "cost_all", None)
             if cost_all is not None and len(ids) > 1:
                 ts = [self.tracks[tid] for tid in ids]
@@ -424,9 +426,9 @@ class Tracker:
                     t = self.tracks[tid]
                     d = t.estimator.distance(points, t.misses)
                     cost_p[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
-            if starts is None:  # one point per candidate
+            if starts is None:  # one point per unit
                 cost, best = cost_p, None
-            else:  # a candidate's cost is that of its best point (centre or one of its legs)
+            else:  # a unit's cost is that of its best point (centre or one of its legs)
                 cost = np.minimum.reduceat(cost_p, starts, axis=1)
                 best = np.column_stack(
                     [np.argmin(g, axis=1) for g in np.split(cost_p, starts[1:], axis=1)]
@@ -442,8 +444,9 @@ class Tracker:
                             measured[ids[r]] = points[starts[c] + best[r, c]]
 
         # 5. update, count misses, start and delete tracks
+        first = starts if starts is not None else np.arange(len(unit_cand))
         updated = [self.tracks[tid] for tid in ids if tid in matched]
-        zs = [measured.get(t.id, z[matched[t.id]]) for t in updated]
+        zs = [measured.get(t.id, points[first[matched[t.id]]]) for t in updated]
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
             update_all([t.estimator for t in updated], np.array(zs))
@@ -459,10 +462,17 @@ class Tracker:
             else:
                 t.misses += 1
         taken = set(matched.values())
-        for c in range(len(z)):
-            if c not in taken:
-                tid = self._new_track(z[c], stamp)
-                matched[tid] = c
+        for u in range(len(unit_cand)):
+            if u not in taken:
+                tid = self._new_track(points[first[u]], stamp)
+                matched[tid] = u
+        # from units back to the message's candidates (a split pair: the target's side wins)
+        by_cand: dict[int, int] = {}
+        for tid, u in matched.items():
+            c = unit_cand[u]
+            if c not in by_cand or tid == self.target_id:
+                by_cand[c] = tid
+        matched = {tid: c for c, tid in by_cand.items()}
         for tid in list(self.tracks):
             t = self.tracks[tid]
             if t.misses > s.max_misses or t.estimator.expired():
@@ -493,31 +503,58 @@ class Tracker:
         self._index += 1
         return self._outputs(stamp, candidates.frame_id, flags, sources)
 
-    def _measurement_points(
+    def _units(
         self, candidates: PersonCandidates, z: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Points a track may be updated with: each candidate's centre and, for a pair whose
-        legs are more than ``split_pair_m`` apart, each of its legs (``starts``: where each
-        candidate's points begin; None when every candidate has only its centre)."""
+    ) -> tuple[list[int], np.ndarray, np.ndarray | None]:
+        """What the tracks are associated with: per unit, the candidate it comes from and the
+        points a track may be updated with (``starts``: where each unit's points begin; None
+        when every unit is one point).
+
+        A pair whose legs are more than ``split_pair_m`` apart may be one leg each of two
+        people. When each leg lies in the gate of a different track, nearest first, it is
+        split into two one-leg units; otherwise it stays one unit whose points are its centre
+        and each of its legs (a track takes the one nearest its prediction)."""
         split = self.settings.split_pair_m
-        if not split:
-            return z, None
-        wide = [
-            c
-            for c, cand in enumerate(candidates.candidates)
-            if len(cand.legs) == 2
-            and math.hypot(cand.legs[0].x_m - cand.legs[1].x_m, cand.legs[0].y_m - cand.legs[1].y_m)
-            > split
-        ]
+        cands = candidates.candidates
+        wide = set()
+        if split:
+            wide = {
+                c
+                for c, cand in enumerate(cands)
+                if len(cand.legs) == 2
+                and math.hypot(
+                    cand.legs[0].x_m - cand.legs[1].x_m, cand.legs[0].y_m - cand.legs[1].y_m
+                )
+                > split
+            }
         if not wide:
-            return z, None
-        pts, starts = [], []
-        for c, cand in enumerate(candidates.candidates):
+            return list(range(len(cands))), z, None
+        unit_cand: list[int] = []
+        pts: list[np.ndarray] = []
+        starts: list[int] = []
+        for c, cand in enumerate(cands):
+            legs = [np.array([leg.x_m, leg.y_m]) for leg in cand.legs]
+            if c in wide and len({self._nearest_gated(leg) for leg in legs} - {-1}) == 2:
+                for leg in legs:
+                    unit_cand.append(c)
+                    starts.append(len(pts))
+                    pts.append(leg)
+                continue
+            unit_cand.append(c)
             starts.append(len(pts))
             pts.append(z[c])
             if c in wide:
-                pts.extend(np.array([leg.x_m, leg.y_m]) for leg in cand.legs)
-        return np.array(pts), np.array(starts)
+                pts.extend(legs)
+        return unit_cand, np.array(pts), np.array(starts)
+
+    def _nearest_gated(self, xy: np.ndarray) -> int:
+        """The track whose gate holds ``xy`` at the least distance, or -1."""
+        best, best_d = -1, math.inf
+        for tid, t in self.tracks.items():
+            d = float(t.estimator.distance(xy[None], t.misses)[0])
+            if d <= t.estimator.gate(t.misses) and d < best_d:
+                best, best_d = tid, d
+        return best
 
     # ------------------------------------------------------------------ target choice
 

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from followbot.schemas import (
     Candidate,
+    Leg,
     Odometry,
     PersonCandidates,
     TargetModel,
@@ -462,6 +463,36 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     still_robot(trk, (trk2_k + 1) * SCAN_NS)
     target, _ = trk.step(cands((trk2_k + 1) * SCAN_NS, (2.0, 0.0)))
     assert target.status == "tracking"
+
+
+@pytest.mark.parametrize("split", [0.4, 0.0])
+def test_a_pair_of_two_peoples_legs_is_split_between_their_tracks(split):
+    """Two people 0.5 m apart, each with a track; one leg of each is hidden and the detector
+    pairs the two visible ones (0.44 m apart) into one candidate between them. Split, each
+    track takes its own leg; unsplit, one track is pulled to the middle."""
+    trk = Tracker(TrackerSettings(split_pair_m=split))
+    trk.set_vision_alive(True)
+    for k in range(4):
+        still_robot(trk, k * SCAN_NS)
+        trk.step(cands(k * SCAN_NS, (2.0, -0.25), (2.0, 0.25)))
+        if k == 0:
+            trk.set_target_model(model(0, 2.0, -0.25))
+    k = 4
+    still_robot(trk, k * SCAN_NS)
+    legs = [Leg(x_m=2.0, y_m=-0.22, first_beam=10, last_beam=14),
+            Leg(x_m=2.0, y_m=0.22, first_beam=20, last_beam=24)]  # fmt: skip
+    pair = Candidate(x_m=2.0, y_m=0.0, range_m=2.0, bearing_rad=0.0, legs=legs)
+    target, people = trk.step(
+        PersonCandidates(
+            stamp_ns=k * SCAN_NS, frame_id="base_laser", n_beams=100, candidates=[pair]
+        )
+    )
+    ys = sorted(round(p.y_m, 1) for p in people.tracks)
+    if split:
+        assert ys == [-0.2, 0.2] and abs(target.y_m + 0.22) < 0.05
+        assert all(p.misses == 0 for p in people.tracks)
+    else:
+        assert any(abs(p.y_m) < 0.1 for p in people.tracks)  # one pulled to the middle
 
 
 def cands_multi(stamp_ns, points):
