@@ -295,17 +295,27 @@ class VisionVerify:
     def judge(self, msg: PersonCandidates, frame: _Frame) -> None:
         model = self.model
         xy = np.array([[c.x_m, c.y_m] for c in msg.candidates], dtype=np.float64).reshape(-1, 2)
-        j = judge(
-            self.verifier,
-            frame.features,
-            frame.camera,
-            model,
-            xy,
-            frame.pan_rad,
-            self.threshold,
-            min_side_px=self.s.min_rect_side_px,
-            max_width_factor=self.s.max_rect_width_factor,
-        )
+        try:
+            j = judge(
+                self.verifier,
+                frame.features,
+                frame.camera,
+                model,
+                xy,
+                frame.pan_rad,
+                self.threshold,
+                min_side_px=self.s.min_rect_side_px,
+                max_width_factor=self.s.max_rect_width_factor,
+            )
+        except ValueError as exc:
+            # a model this verifier cannot use (e.g. saved by an older version): drop it once,
+            # loudly, rather than fail on every scan
+            self.node.log.warning("dropping target model %d: %s", model.model_id, exc)
+            self.count("model_incompatible")
+            self.model = None
+            if self.s.answer_every_scan:
+                self.publish_empty(msg)
+            return
         out = []
         for v, d in zip(j.views, j.distances, strict=True):
             if v.status not in ("ok", "out_of_view"):

@@ -209,6 +209,25 @@ def test_save_command_writes_a_loadable_file(model_file, tmp_path):
     assert rig.node.errors == 2 and rig.svc.model.model_id == 4
 
 
+def test_a_model_the_verifier_cannot_use_is_dropped_once_not_failed_on_every_scan(model_file):
+    """A histogram model handed to a meanshift worker (or a meanshift model saved by an older
+    version): the first judgement finds it unusable; the model is dropped and counted."""
+    import msgspec
+
+    from followbot.services.vision_verify.model import load_model
+
+    rig = Rig(verifier="meanshift", answer_every_scan=True)
+    wrong = msgspec.structs.replace(load_model(model_file), verifier="meanshift")
+    rig.put("perception/target_model", wrong)
+    assert rig.svc.model is not None
+    px, pan, cands, _ = crossing_frame()
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    rig.put("perception/candidates", cands)
+    assert rig.svc.model is None and rig.svc.counts["model_incompatible"] == 1
+    (v,) = rig.verifications()  # lock-step: still answered
+    assert v.stamp_ns == cands.stamp_ns and v.chosen == -1
+
+
 def test_bad_images_and_candidates_are_counted_and_skipped(model_file):
     rig = loaded(model_file, max_rect_width_factor=2.0)
     px, pan, cands, _ = crossing_frame()
