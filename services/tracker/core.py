@@ -255,7 +255,8 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
     vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
-    """No verification newer than this (scan clock) -> flag vision_stale, gate on laser alone."""
+    """No verification that judged a candidate newer than this (scan clock) -> flag
+    vision_stale, gate on laser alone (and re-acquire a lost target near where it was lost)."""
     history_scans: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 64
     max_odometry_extrapolation_s: Annotated[float, msgspec.Meta(ge=0)] = 0.1
     default_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
@@ -613,6 +614,7 @@ class Tracker:
             tid = self._new_track(xy[0], model.stamp_ns)
         self._set_target(tid)
         self._vision_sources = True
+        self._vision_stamp = max(self._vision_stamp or 0, self._now[0])  # vision's own word
 
     def _nearest_track(self, xy: np.ndarray, within_m: float) -> int:
         best, best_d = -1, within_m
@@ -643,7 +645,10 @@ class Tracker:
 
     def _apply_verification(self, v: Verification, scan: _Scan, pose: Pose | None) -> None:
         self.verifications_applied += 1
-        if self._vision_stamp is None or v.stamp_ns > self._vision_stamp:
+        judged = any(c.distance is not None for c in v.candidates)
+        if judged and (self._vision_stamp is None or v.stamp_ns > self._vision_stamp):
+            # vision that judges nothing (no image, target out of view, a face verifier that
+            # sees no face) is no evidence: after vision_stale_s the laser gates alone
             self._vision_stamp = v.stamp_ns
         self._judge_target(v, scan)
         if v.chosen < 0:

@@ -495,6 +495,32 @@ def test_a_pair_of_two_peoples_legs_is_split_between_their_tracks(split):
         assert any(abs(p.y_m) < 0.1 for p in people.tracks)  # one pulled to the middle
 
 
+def test_vision_that_judges_nothing_goes_stale():
+    """Verifications keep coming but judge no candidate (a face verifier that sees no face,
+    the target out of the camera's view): after vision_stale_s the laser gates alone."""
+    trk = Tracker(TrackerSettings())
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    flags = []
+    for k in range(1, 25):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        flags.append("vision_stale" in target.flags)
+        blind = Verification(
+            stamp_ns=k * SCAN_NS,
+            image_stamp_ns=k * SCAN_NS,
+            model_id=1,
+            verifier="test",
+            candidates=[VerifiedCandidate(index=0, x_m=2.0, y_m=0.0, in_view=False)],
+            chosen=-1,
+        )
+        trk.add_verification(blind)
+    assert not any(flags[:10]) and all(flags[-5:])  # 2 s = 17 scans after the model
+    assert target.status == "tracking"
+
+
 def cands_multi(stamp_ns, points):
     return cands(stamp_ns, *points) if points else cands(stamp_ns)
 

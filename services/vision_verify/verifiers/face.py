@@ -12,7 +12,11 @@ when a face is seen in the model rectangle, else ``face_height_m``). A candidate
 the Mahalanobis distance of the nearest face's (alpha, beta) residual with
 sigma_alpha = sigma_beta = pi/45 (seed 002), divided by the gate ``gate`` (seed 002:
 lambda_C = 3.37), so a face inside the gate gives a distance <= 1; a candidate with no face
-inside the gate gets ``no_face_distance``.
+inside the gate gets ``no_face_distance``: by default None, no evidence either way. A face is
+positive evidence only (seed 002 uses it to confirm a person): someone walking away shows
+none, and a rejection for that made the tracker drop a target it was following correctly
+(the bellotto preset tracked 1-2 % of the visible time in the simulator, whose faces the Haar
+cascade does not find).
 
 A face says "a person faces the camera here" and, through its height, a little about who it
 is; it cannot tell two people of the same height apart, and sees nothing of a person walking
@@ -45,7 +49,9 @@ class FaceSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     gate: float = 3.37  # seed 002 III-C: lambda_C = 3.37
     face_height_m: float = 1.6
     """Face-centre height assumed when no face is seen at acquisition."""
-    no_face_distance: float = 2.0
+    no_face_distance: float | None = None
+    """Distance of a candidate with no face in its gate; None: not judged (no evidence). A
+    number (e.g. 2.0, above the threshold) makes "no face" a rejection."""
     default_threshold: float = 1.0
 
 
@@ -120,7 +126,7 @@ class FaceVerifier:
                 out.append(None)
                 continue
             if faces.shape[0] == 0:
-                out.append(s.no_face_distance)
+                out.append(s.no_face_distance)  # None by default: no evidence either way
                 continue
             rho = math.hypot(v.depth_m, v.lateral_m)
             a_exp = math.atan2(v.lateral_m, v.depth_m)
