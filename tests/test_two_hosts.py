@@ -107,7 +107,13 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
                                "client", "--connect", "tcp/127.0.0.1:7447"))  # fmt: skip
             v1 = start(off, "v1", "run", "vision_verify", "--config", str(vision_cfg))
             procs.append(v1)
-            time.sleep(14)  # model built, robot following
+            # model built (processes on two cores can take several seconds to start), then
+            # the robot following for a while
+            deadline = time.monotonic() + 40
+            while "target model 1 built" not in (tmp_path / "v1.log").read_text():
+                assert time.monotonic() < deadline, (tmp_path / "v1.log").read_text()
+                time.sleep(0.5)
+            time.sleep(6)
             t_kill = time.time_ns()
             v1.send_signal(signal.SIGKILL)
             v1.wait(5)

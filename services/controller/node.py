@@ -19,13 +19,13 @@ import msgspec
 from followbot.schemas import PanCommand, TrackState, VelocityCommand
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
-from followbot.services.tracker.node import _with_node_settings
+from followbot.services.runtime.settings import with_node_settings
 
 from .core import Command, ControllerSettings, FollowController
 
 __all__ = ["ControllerNodeSettings", "main", "setup"]
 
-_ControllerNodeBase = _with_node_settings(ControllerSettings, "_ControllerNodeBase")
+_ControllerNodeBase = with_node_settings(ControllerSettings, "_ControllerNodeBase", __name__)
 
 
 class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_fields=True):

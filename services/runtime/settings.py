@@ -23,6 +23,7 @@ __all__ = [
     "ZenohSettings",
     "apply_overrides",
     "load_settings",
+    "with_node_settings",
 ]
 
 #: Loopback rendezvous of the embedded default: the first process binds it, the others connect.
@@ -73,6 +74,20 @@ class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     zenoh: ZenohSettings = msgspec.field(default_factory=ZenohSettings)
     health_period_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> type[NodeSettings]:
+    """NodeSettings plus every field of ``core``, flat (``--set estimator=ukf``): the settings
+    type of a service whose logic lives in ``core`` (tracker, controller)."""
+    spec = []
+    for f in msgspec.structs.fields(core):
+        if f.default is msgspec.NODEFAULT:
+            spec.append((f.name, f.type, msgspec.field(default_factory=f.default_factory)))
+        else:
+            spec.append((f.name, f.type, f.default))
+    return msgspec.defstruct(
+        name, spec, bases=(NodeSettings,), kw_only=True, forbid_unknown_fields=True, module=module
+    )
 
 
 def _parse_file(path: Path) -> dict[str, Any]:

@@ -20,32 +20,14 @@ from followbot.services.runtime.lockstep import HeldInputs
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.plugins import UnknownPlugin
 from followbot.services.runtime.service import service_main
-from followbot.services.runtime.settings import NodeSettings
+from followbot.services.runtime.settings import with_node_settings
 
 from .core import Tracker, TrackerSettings
 
 __all__ = ["TrackerNodeSettings", "main", "setup"]
 
 
-def _with_node_settings(core: type[msgspec.Struct], name: str) -> type[NodeSettings]:
-    """NodeSettings plus every field of ``core``, flat (``--set estimator=ukf``)."""
-    spec = []
-    for f in msgspec.structs.fields(core):
-        if f.default is msgspec.NODEFAULT:
-            spec.append((f.name, f.type, msgspec.field(default_factory=f.default_factory)))
-        else:
-            spec.append((f.name, f.type, f.default))
-    return msgspec.defstruct(
-        name,
-        spec,
-        bases=(NodeSettings,),
-        kw_only=True,
-        forbid_unknown_fields=True,
-        module=__name__,
-    )
-
-
-_TrackerNodeBase = _with_node_settings(TrackerSettings, "_TrackerNodeBase")
+_TrackerNodeBase = with_node_settings(TrackerSettings, "_TrackerNodeBase", __name__)
 
 
 class TrackerNodeSettings(_TrackerNodeBase, kw_only=True, forbid_unknown_fields=True):

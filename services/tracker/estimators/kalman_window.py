@@ -42,8 +42,6 @@ from typing import Annotated
 
 import msgspec
 import numpy as np
-from filterpy.common import Q_continuous_white_noise
-from filterpy.kalman import KalmanFilter
 
 __all__ = ["KalmanWindowEstimator", "KalmanWindowSettings"]
 
@@ -89,6 +87,8 @@ class KalmanWindowEstimator:
         if not (math.isfinite(x_m) and math.isfinite(y_m)):
             raise ValueError(f"non-finite initial position ({x_m}, {y_m})")
         self.settings = s
+        from filterpy.kalman import KalmanFilter  # here: filterpy + scipy.stats cost ~1 s
+
         kf = KalmanFilter(dim_x=4, dim_z=2)
         kf.x = np.array([x_m, y_m, 0.0, 0.0])
         pv, vv = s.initial_position_std_m**2, s.initial_velocity_std_mps**2
@@ -125,6 +125,8 @@ class KalmanWindowEstimator:
             F[0, 2] = F[1, 3] = dt  # x' = x + vx dt, y' = y + vy dt
             # Q per axis q [[dt^3/3, dt^2/2], [dt^2/2, dt]], state order [x, y, vx, vy]
             q = self.settings.accel_noise
+            from filterpy.common import Q_continuous_white_noise
+
             Q = Q_continuous_white_noise(2, dt, q, block_size=2, order_by_dim=False)
             self._kf.F, self._kf.Q, self._dt = F, Q, dt
         self._kf.predict()

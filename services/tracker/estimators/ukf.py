@@ -24,7 +24,6 @@ from typing import Annotated
 
 import msgspec
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from .base import wrap_angle
 
@@ -83,6 +82,9 @@ class UKFEstimator:
         s = settings or UKFSettings()
         self.settings = s
         # alpha = 1, kappa = 0: non-negative mean weights, so P stays positive definite
+        # imported here: filterpy pulls in scipy.stats (~1 s at every tracker start)
+        from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
         points = MerweScaledSigmaPoints(4, alpha=1.0, beta=2.0, kappa=0.0)
         ukf = UnscentedKalmanFilter(
             dim_x=4,
