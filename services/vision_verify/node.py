@@ -210,9 +210,16 @@ class VisionVerify:
     # ------------------------------------------------------------------ candidates, pairing
 
     def on_candidates(self, msg: PersonCandidates) -> None:
+        had_model = self.model is not None
         if self.builder is not None:
             self.acq_cands[msg.stamp_ns] = msg
             self._feed_builder()
+        if self.s.answer_every_scan and not had_model:
+            # lock-step: a model built while this scan was fed to the builder judges from the
+            # next scan on, whether image or candidates came last (reruns must agree)
+            self.count("scan_no_model")
+            self.publish_empty(msg)
+            return
         if msg.stamp_ns <= self.last_judged_ns or msg.stamp_ns in self.pending:
             self.count("scan_duplicate_or_old")
             if self.s.answer_every_scan and msg.stamp_ns not in self.pending:
