@@ -223,8 +223,10 @@ def run_scenario(
         node.spin_once()  # and those that came while a handler ran (queued for the loop)
     finally:
         wall_s = time.monotonic() - t_wall0
-        procs.stop()
+        # stop listening first: stopping the stages makes the controller brake (tracker gone),
+        # a command after the run that a recording would catch or not depending on timing
         node.close()
+        procs.stop()
         session.close()
         if writer is not None:
             writer.close()
