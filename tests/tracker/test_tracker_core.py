@@ -280,6 +280,16 @@ def still_robot(tracker, stamp_ns):
     tracker.add_odometry(odom(stamp_ns, 0.0, 0.0, 0.0))
 
 
+def following_at_two(**settings) -> Tracker:
+    """A tracker with vision, its target learnt standing at (2, 0) and tracked at scan 0."""
+    trk = Tracker(TrackerSettings(**settings))
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    return trk
+
+
 def test_status_initialising_tracking_coasting_then_lost_after_more_than_8_misses():
     trk = Tracker(TrackerSettings())
     still_robot(trk, 0)
@@ -363,11 +373,7 @@ def test_verification_naming_an_unknown_scan_is_counted_not_applied():
 
 
 def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
-    trk = Tracker(TrackerSettings())
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two()
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))  # vision is fresh
     for k in range(1, 11):  # the target disappears: lost after 9 misses
         still_robot(trk, k * SCAN_NS)
@@ -498,11 +504,7 @@ def test_a_pair_of_two_peoples_legs_is_split_between_their_tracks(split):
 def test_vision_that_judges_nothing_goes_stale():
     """Verifications keep coming but judge no candidate (a face verifier that sees no face,
     the target out of the camera's view): after vision_stale_s the laser gates alone."""
-    trk = Tracker(TrackerSettings())
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two()
     flags = []
     for k in range(1, 25):
         still_robot(trk, k * SCAN_NS)
@@ -540,11 +542,7 @@ def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(r
     vision (one scan late) rejects that candidate. With rollback the target returns to where
     it was and coasts while a new track follows the passer-by; without, the estimate is
     dragged onto the passer-by."""
-    trk = Tracker(TrackerSettings(rollback=rollback))
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two(rollback=rollback)
     # scans 1..2 the target alone; 3..5 only the passer-by (target hidden); 6.. both
     passer = {3: (1.75, 0.2), 4: (1.7, 0.05), 5: (1.68, -0.1), 6: (1.66, -0.3), 7: (1.65, -0.5)}
     target_id = None
@@ -573,11 +571,7 @@ def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
     """A passer-by pulls the target in small steps: scan 3 (not judged by vision) 0.12 m,
     scan 4 another 0.08 m; vision rejects scan 4. Measured from scan 4's prediction that is
     no jump, from the last confirmed state (scan 2) it is 0.2 m: the target goes back there."""
-    trk = Tracker(TrackerSettings())
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two()
     path = {1: (2.0, 0.0), 2: (2.0, 0.0), 3: (1.9, 0.07), 4: (1.83, 0.11), 5: (1.7, 0.3)}
     for k in range(1, 7):
         still_robot(trk, k * SCAN_NS)
@@ -595,11 +589,7 @@ def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
 
 def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
     """Its look changed (turning round), its position did not jump: no rollback."""
-    trk = Tracker(TrackerSettings())
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two()
     for k, d in enumerate([0.3, 1.2, 0.3, 0.3], start=1):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
@@ -612,11 +602,7 @@ def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
     """The target's candidate jumps 0.25 m (a long step, or a leg paired anew) and vision
     wrongly rejects it: the rollback splits the track; the next verification that accepts the
     person repairs the split. The target is never lost."""
-    trk = Tracker(TrackerSettings())
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two()
     statuses = []
     xs = [2.0, 2.25, 2.25, 2.25, 2.25, 2.25, 2.25]
     for k, (x, d) in enumerate(zip(xs, [0.3, 1.2, 0.3, 0.3, 0.3, 0.3, 0.3], strict=True), 1):
@@ -631,11 +617,7 @@ def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
 
 
 def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
-    trk = Tracker(TrackerSettings(reject_votes=2, rollback=False))
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    trk.step(cands(0, (2.0, 0.0)))
+    trk = following_at_two(reject_votes=2, rollback=False)
     for k, d in enumerate([1.2, 0.3, 1.2, 0.3, 1.2, 0.3], start=1):  # never two in a row
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
