@@ -313,7 +313,11 @@ class TargetModel(Message, tag="target_model", kw_only=True):
     """perception/target_model: what the target looks like, and where it was when learnt.
 
     ``features`` holds the verifier's descriptors, e.g. for the thesis histogram verifier
-    ``colour_hs`` (216 bins) and ``edge_orientation`` (72 bins), each summing to 1.
+    ``colour_hs`` (216 bins) and ``edge_orientation`` (72 bins), each summing to 1, and
+    ``patch_bgr`` (uint8 pixels of the model's rectangle, grown by a pixel) with
+    ``patch_rect`` (where the rectangle lies in it), from which it recomputes the histograms of
+    the part of the body a clipped or occluded candidate shows. Features are float, or uint8
+    (image pixels).
     Also answered as a Zenoh query on the same key, so a restarted stage can recover it.
     """
 
@@ -333,7 +337,10 @@ class TargetModel(Message, tag="target_model", kw_only=True):
 
     def __post_init__(self) -> None:
         for name, arr in self.features.items():
-            require(arr.dtype in ("<f4", "<f8"), f"feature {name!r} must be float, got {arr.dtype}")
+            require(
+                arr.dtype in ("<f4", "<f8", "|u1"),
+                f"feature {name!r} must be float or uint8, got {arr.dtype}",
+            )
 
 
 class TargetCommand(Message, tag="target_command", kw_only=True):

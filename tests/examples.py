@@ -85,6 +85,7 @@ def example_messages() -> dict[type[Message], Message]:
             features={
                 "colour_hs": Array.from_numpy(np.full(216, 1 / 216, np.float32)),
                 "edge_orientation": Array.from_numpy(np.full(72, 1 / 72, np.float32)),
+                "patch_bgr": Array.from_numpy(np.arange(36, dtype=np.uint8).reshape(4, 3, 3)),
             },
         ),
         TargetCommand(stamp_ns=STAMP, action="acquire"),

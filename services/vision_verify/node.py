@@ -75,6 +75,11 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     min_rect_side_px: Annotated[int, msgspec.Meta(ge=2)] = 8
     max_rect_width_factor: _Pos = 3.0
     """Candidates whose rectangle is wider than this many image widths are skipped."""
+    min_visible_fraction: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = 0.5
+    """Beyond the thesis: the columns of a candidate's rectangle that nearer candidates'
+    rectangles cover are not its own (the laser gives the depth order). A candidate is judged
+    on the widest run of columns left, and skipped as ``occluded`` (counted) when that run is
+    under this fraction of its width. None: judge whole rectangles, as the thesis."""
     acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
     auto_acquire: bool = False
     """Build a model, without a command, whenever there is none (one mover, still robot)."""
@@ -311,6 +316,7 @@ class VisionVerify:
                 xy,
                 frame.pan_rad,
                 self.threshold,
+                min_visible_fraction=self.s.min_visible_fraction,
                 min_side_px=self.s.min_rect_side_px,
                 max_width_factor=self.s.max_rect_width_factor,
             )

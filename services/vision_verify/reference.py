@@ -83,10 +83,17 @@ class ReferenceFeatures:
 
 class ReferenceHistogramVerifier:
     """The histogram verifier as first written: per candidate, both histograms in a dict, then
-    two :func:`bhattacharyya` calls (d_colour + d_edge, thesis eq. 3-23)."""
+    two :func:`bhattacharyya` calls (d_colour + d_edge, thesis eq. 3-23). A candidate showing
+    part of its body is compared with the same part of the model's pixels, recomputed here
+    each time, the plain way (the window itself is :meth:`HistogramVerifier.window`)."""
 
     name = "histogram"
     default_threshold = 0.8
+
+    def __init__(self) -> None:
+        from .verifiers.histogram import HistogramVerifier
+
+        self._window = HistogramVerifier().window
 
     def distances(self, frame, views: Sequence[View], model: Model) -> list[float | None]:
         out: list[float | None] = []
@@ -95,8 +102,22 @@ class ReferenceHistogramVerifier:
                 out.append(None)
                 continue
             h = frame.histograms(v.rect)
+            m = self._model(v, model)
             out.append(
-                bhattacharyya(h["colour_hs"], model.features["colour_hs"])
-                + bhattacharyya(h["edge_orientation"], model.features["edge_orientation"])
+                bhattacharyya(h["colour_hs"], m["colour_hs"])
+                + bhattacharyya(h["edge_orientation"], m["edge_orientation"])
             )
         return out
+
+    def _model(self, v: View, model: Model) -> dict[str, np.ndarray]:
+        win = self._window(v)
+        if win is None or "patch_bgr" not in model.features:
+            return model.features
+        x0, y0, x1, y1 = (float(c) for c in model.features["patch_rect"])
+        w, h = x1 - x0, y1 - y0
+        sub = tuple(
+            round(c) for c in (x0 + win[0] * w, y0 + win[1] * h, x0 + win[2] * w, y0 + win[3] * h)
+        )
+        if sub[2] - sub[0] < 2 or sub[3] - sub[1] < 2:
+            return model.features
+        return ReferenceFeatures(model.features["patch_bgr"]).histograms(sub)

@@ -15,6 +15,8 @@ from followbot.services.vision_verify.core import (
     EDGE_BINS,
     Camera,
     ImageFeatures,
+    Model,
+    View,
     adapt_features,
     bhattacharyya,
     blend,
@@ -22,6 +24,8 @@ from followbot.services.vision_verify.core import (
     colour_histogram,
     confident,
     edge_histogram,
+    judge,
+    occlude,
     project,
 )
 
@@ -286,3 +290,55 @@ def test_blend_moves_slowly_and_stays_normalised():
     feats = adapt_features({"a": m, "b": m}, {"a": s, "c": s}, 0.5)
     np.testing.assert_allclose(feats["a"], [0.5, 0.5, 0, 0])
     assert feats["b"] is m and "c" not in feats
+
+
+def _view(i: int, depth: float, rect) -> View:
+    return View(index=i, x_m=depth, y_m=0.0, depth_m=depth, rect=rect)
+
+
+def test_a_candidate_keeps_only_the_columns_no_nearer_candidate_covers():
+    near = _view(0, 1.0, (100, 0, 200, 240))
+    half = _view(1, 2.0, (150, 40, 250, 200))  # its right half shows
+    hidden = _view(2, 3.0, (120, 60, 180, 180))  # wholly behind the nearest
+    occlude([half, hidden, near], 0.5)
+    assert near.ok and near.rect == (100, 0, 200, 240) and near.projected is None
+    assert half.ok and half.rect == (200, 40, 250, 200)
+    assert half.projected == (150, 40, 250, 200)
+    assert hidden.status == "occluded"
+
+
+def test_a_candidate_behind_a_narrow_one_keeps_its_wider_side_or_is_occluded():
+    post = _view(0, 1.0, (140, 0, 160, 240))
+    wide = _view(1, 2.0, (100, 0, 200, 240))  # 40 px left of the post, 40 px right
+    occlude([post, wide], 0.4)
+    assert wide.ok and wide.rect == (100, 0, 140, 240)
+    wide = _view(1, 2.0, (100, 0, 200, 240))
+    occlude([post, wide], 0.5)  # 40 of 100 columns in one run: under half
+    assert wide.status == "occluded"
+
+
+def test_only_judged_candidates_hide_others():
+    gone = _view(0, 1.0, (0, 0, 320, 240))
+    gone.status = "too_large"
+    far = _view(1, 2.0, (100, 0, 200, 240))
+    occlude([gone, far], 0.5)
+    assert far.ok and far.rect == (100, 0, 200, 240)
+
+
+def test_judge_skips_the_candidate_behind_and_can_be_told_not_to():
+    """Two candidates one behind the other: only the nearer one is judged by default."""
+    model = Model(
+        model_id=1, verifier="histogram", x_m=2.0, y_m=0.0, depth_m=2.0, rect_w_px=80,
+        rect_h_px=160, image_width=320, image_height=240,
+        features={"colour_hs": colour_histogram(patch((0, 0, 200))),
+                  "edge_orientation": np.full(EDGE_BINS, 1 / EDGE_BINS, np.float32)},
+    )  # fmt: skip
+    from followbot.services.vision_verify.verifiers import make_verifier
+
+    v = make_verifier("histogram")
+    frame = ImageFeatures(np.full((240, 320, 3), 90, np.uint8))
+    xy = np.array([[2.0, 0.0], [3.0, 0.05]])
+    j = judge(v, frame, CAM, model, xy, 0.0, None)
+    assert [w.status for w in j.views] == ["ok", "occluded"] and j.distances[1] is None
+    j = judge(v, frame, CAM, model, xy, 0.0, None, min_visible_fraction=None)
+    assert [w.status for w in j.views] == ["ok", "ok"] and j.distances[1] is not None

@@ -5,10 +5,18 @@ from __future__ import annotations
 import math
 
 import cv2
+import msgspec
 import numpy as np
 import pytest
 
-from followbot.services.vision_verify.core import Camera, ImageFeatures, Verifier, View, judge
+from followbot.services.vision_verify.core import (
+    Camera,
+    ImageFeatures,
+    Verifier,
+    View,
+    judge,
+    project,
+)
 from followbot.services.vision_verify.model import build_model
 from followbot.services.vision_verify.verifiers import REGISTRY, make_verifier
 
@@ -33,8 +41,8 @@ def test_conformance(name):
     assert isinstance(v.default_threshold, float)
     model = build_model(v, camera, acq, 1)
     assert model.verifier == name and model.features
-    for arr in model.features.values():
-        assert arr.dtype == np.float32 and np.all(np.isfinite(arr))
+    for arr in model.features.values():  # histograms, or the pixels they were learnt from
+        assert arr.dtype in (np.float32, np.uint8) and np.all(np.isfinite(arr))
     image, px, cands, _truth, _ = frames[-1]
     xy = np.array([[c.x_m, c.y_m] for c in cands.candidates] + [[-1.0, 0.0], [2.0, 5.0]])
     j = judge(v, ImageFeatures(px), camera, model, xy, image.pan_rad, None)
@@ -118,3 +126,47 @@ def test_face_verifier_finds_a_real_face_and_checks_bearing_and_height():
     assert j.distances[0] is not None and j.distances[0] < 0.2
     assert j.distances[1] == v.settings.no_face_distance
     assert j.chosen == 0
+
+
+@pytest.mark.parametrize("closer", [1.5, 2.0])
+def test_a_target_closer_than_when_learnt_is_compared_with_the_same_part_of_the_model(closer):
+    """The target at 1/closer of its learning distance: the image clips its head and feet.
+    Compared with the same rows of the model's pixels, it is nearer to the model than when
+    compared with the whole model (the thesis's way, ``match_windows`` off)."""
+    camera, acq, _frames = acquired_scene()
+    v = make_verifier("histogram")
+    whole = make_verifier("histogram", {"match_windows": False})
+    model = build_model(v, camera, acq, 1)
+    x0, y0, x1, y1 = acq.rect
+    person = acq.bgr[y0:y1, x0:x1]
+    xy = np.array([[acq.x_m / closer, acq.y_m / closer]])
+    (view,) = project(camera, xy, acq.pan_rad, model.rect_w_px, model.rect_h_px, model.depth_m)
+    bx0, by0, bx1, by1 = (round(c) for c in view.body)
+    assert by0 < 0 and by1 > acq.bgr.shape[0]  # clipped top and bottom
+    big = cv2.resize(person, (bx1 - bx0, by1 - by0), interpolation=cv2.INTER_LINEAR)
+    frame = np.full_like(acq.bgr, 128)
+    h, w = frame.shape[:2]
+    sx, sy = max(0, -bx0), max(0, -by0)
+    dx, dy = max(0, bx0), max(0, by0)
+    cw, ch = min(w - dx, big.shape[1] - sx), min(h - dy, big.shape[0] - sy)
+    frame[dy : dy + ch, dx : dx + cw] = big[sy : sy + ch, sx : sx + cw]
+    d_windows = judge(v, ImageFeatures(frame), camera, model, xy, acq.pan_rad, None).distances
+    d_whole = judge(whole, ImageFeatures(frame), camera, model, xy, acq.pan_rad, None).distances
+    assert d_windows[0] < d_whole[0] - 0.1
+
+
+def test_a_model_without_its_pixels_is_compared_whole():
+    """A model saved before the pixels were kept (or by another implementation) still works:
+    every candidate is compared with the whole model."""
+    camera, acq, frames = acquired_scene()
+    v = make_verifier("histogram")
+    model = build_model(v, camera, acq, 1)
+    old = msgspec.structs.replace(
+        model, features={k: model.features[k] for k in ("colour_hs", "edge_orientation")}
+    )
+    whole = make_verifier("histogram", {"match_windows": False})
+    image, px, cands, _truth, _ = frames[-1]
+    xy = np.array([[c.x_m, c.y_m] for c in cands.candidates]).reshape(-1, 2)
+    got = judge(v, ImageFeatures(px), camera, old, xy, image.pan_rad, None).distances
+    want = judge(whole, ImageFeatures(px), camera, model, xy, image.pan_rad, None).distances
+    assert got == want
