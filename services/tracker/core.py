@@ -64,7 +64,7 @@ from __future__ import annotations
 import bisect
 import copy
 import math
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from typing import Annotated, Any, Literal
 
 import msgspec
@@ -100,6 +100,9 @@ _NO_VISION = ("no_vision", "vision_stale")
 
 
 # --------------------------------------------------------------------------- ego-motion
+
+
+_I2 = np.eye(2)
 
 
 def _rot(theta: float) -> np.ndarray:
@@ -230,12 +233,12 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Without vision only: a lost target is re-taken by the track nearest to where it was lost,
     within this distance (0: never without vision)."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    """Consecutive verifications preferring another track before the target moves to it."""
     reject_votes: Annotated[int, msgspec.Meta(ge=0, le=100)] = 2
     """Drop the target after this many consecutive verifications that saw its candidate and
     rejected it (appearance distance above the verifier's threshold): the robot stops rather
     than follow someone vision says is not the target (0: never). Beyond the thesis, which
     always takes the nearest match."""
-    """Consecutive verifications preferring another track before the target moves to it."""
     split_pair_m: Annotated[float, msgspec.Meta(ge=0)] = 0.4
     """A two-leg candidate whose legs are farther apart than this may be one leg each of two
     people (the thesis pairs legs up to 500 mm apart; when one of the target's legs is hidden
@@ -252,6 +255,17 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """... only when that candidate also lay this far or farther from the target's prediction
     (0.15 m: 1.25 m/s over one 120 ms scan). The target itself, seen where it was expected
     while its look changes (turning round, lighting), is not split off by a rejection."""
+    coast_velocity_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """Beyond the thesis: a track that missed its candidate (hidden behind someone) moves on at
+    the person's recent velocity (the median of its step velocities over this many seconds:
+    one update pulled aside by a passer-by's leg does not turn it) instead of staying where it
+    was last seen. Only for estimators whose own prediction has
+    no velocity memory (the thesis's particle filter, whose velocities are redrawn around
+    zero every step): there a hidden walker was left behind, and a robot following at walking
+    speed saw the left-behind track drift towards itself and onto a passer-by
+    (thesis_5_2_4_side_by_side). 0: off, as the thesis."""
+    coast_max_speed_mps: Annotated[float, msgspec.Meta(gt=0)] = 2.5
+    """The coasting velocity is clipped to this speed (a brisk walk)."""
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
     vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
@@ -268,7 +282,17 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
 class Track:
     """One tracked person: an estimator plus the bookkeeping of the tracker."""
 
-    __slots__ = ("born_ns", "estimator", "hits", "id", "last_seen_ns", "misses")
+    __slots__ = (
+        "anchor",
+        "born_ns",
+        "estimator",
+        "hits",
+        "id",
+        "last_seen_ns",
+        "misses",
+        "steps",
+        "velocity",
+    )
 
     def __init__(self, track_id: int, estimator: Estimator, stamp_ns: int) -> None:
         self.id = track_id
@@ -277,6 +301,12 @@ class Track:
         self.hits = 1
         self.born_ns = stamp_ns
         self.last_seen_ns = stamp_ns
+        self.velocity = np.zeros(2)
+        """The person's recent velocity (current robot frame), for coasting."""
+        self.anchor: np.ndarray | None = None
+        """Position after the last update (current robot frame), for :attr:`velocity`."""
+        self.steps: deque[tuple[int, np.ndarray]] = deque()
+        """(stamp, velocity between two updates) of the recent updates (current robot frame)."""
 
     @property
     def position(self) -> np.ndarray:
@@ -383,6 +413,13 @@ class Tracker:
             self.steps_without_odometry += 1
         self._last_pose = pose
         self._last_stamp = stamp
+        if rotation is not None:
+            for t in self.tracks.values():
+                t.velocity = rotation @ t.velocity
+                if t.anchor is not None:
+                    t.anchor = rotation @ t.anchor + translation
+                if t.steps:
+                    t.steps = deque((k, rotation @ v) for k, v in t.steps)
 
         # 2. predict (after the ego-motion): all tracks in one batch where the estimator can
         motion_all = getattr(self._cls, "motion_all", None)
@@ -393,6 +430,10 @@ class Tracker:
                 if rotation is not None:
                     t.estimator.ego_motion(rotation, translation)
                 t.estimator.predict(dt, t.misses)
+        if s.coast_velocity_s > 0:
+            for t in self.tracks.values():  # hidden since the last scan: moving on (settings)
+                if t.misses > 0 and getattr(t.estimator, "coasts_in_place", False):
+                    t.estimator.ego_motion(_I2, t.velocity * dt)
 
         # the target before this scan's update, for a rollback by late vision
         prior = None
@@ -457,6 +498,8 @@ class Tracker:
         for tid in ids:
             t = self.tracks[tid]
             if tid in matched:
+                if s.coast_velocity_s > 0:
+                    self._learn_velocity(t, stamp)
                 t.misses = 0
                 t.hits += 1
                 t.last_seen_ns = stamp
@@ -503,6 +546,20 @@ class Tracker:
             self._history.popitem(last=False)
         self._index += 1
         return self._outputs(stamp, candidates.frame_id, flags, sources)
+
+    def _learn_velocity(self, t: Track, stamp: int) -> None:
+        """The track's velocity: the median of its step velocities (``coast_velocity_s``)."""
+        xy = np.array(t.position, dtype=float)
+        if t.anchor is not None and stamp > t.last_seen_ns:
+            t.steps.append((stamp, (xy - t.anchor) / ((stamp - t.last_seen_ns) / _NS)))
+            oldest = stamp - self.settings.coast_velocity_s * _NS
+            while t.steps[0][0] < oldest:
+                t.steps.popleft()
+            v = np.median(np.array([v for _, v in t.steps]), axis=0)
+            speed = float(np.hypot(*v))
+            cap = self.settings.coast_max_speed_mps
+            t.velocity = v * (cap / speed) if speed > cap else v
+        t.anchor = xy
 
     def _units(
         self, candidates: PersonCandidates, z: np.ndarray
@@ -563,7 +620,8 @@ class Tracker:
         tid = self._next_id
         self._next_id += 1
         rng = np.random.default_rng([self.settings.seed, tid])
-        self.tracks[tid] = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
+        self.tracks[tid] = track = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
+        track.anchor = np.array(xy[:2], dtype=float)
         return tid
 
     def _set_target(self, tid: int) -> None:

@@ -624,3 +624,43 @@ def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
         assert target.status == "tracking"
         trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
     assert trk.target_rejections == 0
+
+
+@pytest.mark.parametrize("coast", [1.0, 0.0])
+def test_a_hidden_walker_is_carried_on_at_its_velocity(coast):
+    """A person walks across at 0.6 m/s, then is hidden for 6 scans (0.72 s). With
+    coast_velocity_s the track moves on with them, stays within 0.15 m of where they are, and
+    takes them back when they reappear; the thesis's filter (0: off) leaves the track where
+    they were last seen, ~0.4 m behind."""
+    trk = Tracker(TrackerSettings(acquire="nearest", coast_velocity_s=coast))
+    v, dt = 0.6, SCAN_NS / 1e9
+    for k in range(20):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, -1.0 + v * dt * k)))
+    tid = target.track_id
+    for k in range(20, 26):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    truth_y = -1.0 + v * dt * 25
+    assert target.status == "coasting" and target.track_id == tid
+    if coast:
+        assert abs(target.y_m - truth_y) < 0.15
+        still_robot(trk, 26 * SCAN_NS)
+        target, _ = trk.step(cands(26 * SCAN_NS, (2.0, -1.0 + v * dt * 26)))
+        assert target.status == "tracking" and target.track_id == tid
+    else:
+        assert truth_y - target.y_m > 0.3
+
+
+def test_the_coasting_velocity_is_a_median_one_pulled_update_does_not_turn_it():
+    """Walking at 0.6 m/s along y, one update pulled 0.15 m backwards (a passer-by's leg),
+    then hidden: the coasting velocity is still about the walker's."""
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    v, dt = 0.6, SCAN_NS / 1e9
+    for k in range(12):
+        still_robot(trk, k * SCAN_NS)
+        y = -1.0 + v * dt * k - (0.15 if k == 11 else 0.0)
+        trk.step(cands(k * SCAN_NS, (2.0, y)))
+    (track,) = trk.tracks.values()
+    assert track.velocity[1] == pytest.approx(v, abs=0.15)
+    assert abs(track.velocity[0]) < 0.15

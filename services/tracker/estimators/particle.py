@@ -139,6 +139,12 @@ class ParticleEstimator:
     # ------------------------------------------------------------------ estimate
 
     @property
+    def coasts_in_place(self) -> bool:
+        """Whether a prediction without update leaves the estimate where it was (velocities
+        redrawn around zero): the tracker then moves a hidden track on at its recent velocity."""
+        return self.settings.velocity_model == "random_walk"
+
+    @property
     def mean(self) -> np.ndarray:
         """(4,) the MMSE estimate (eq. 3-38) of the last update, else the cloud's mean."""
         return self._mean
