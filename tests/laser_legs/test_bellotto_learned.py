@@ -247,3 +247,26 @@ def test_training_figures_and_threshold_choice_follow_the_detector_rule():
     assert figures([pos], [neg], 0.3, 0.3, 0.5) == (1.0, 2.0)  # lone legs >= 0.3 count
     t, tp, rc, fp = choose_thresholds([pos], [neg], 0.5, 0.5)
     assert rc == 1.0 and fp == 0.0 and t > 0.35 and tp <= 0.25
+
+
+def test_threshold_choice_can_bound_the_labelled_scans_background():
+    from followbot.services.laser_legs.train import ScanData, background_false, choose_thresholds
+
+    s = LearnedSettings()
+    legs = person_legs(2.0, 0.0, separation_m=0.3, leg_radius_m=R)
+    pos = ScanData(make_scan([*legs, (2.0, 1.5, R)], WALL), np.array([[2.0, 0.15]]), s)
+    near = np.hypot(pos.cx - 2.0, pos.cy - 0.15) < 0.1
+    partner = np.hypot(pos.cx - 2.0, pos.cy + 0.15) < 0.1
+    post = np.hypot(pos.cx - 2.0, pos.cy - 1.5) < 0.1  # 1.35 m from the label: background
+    assert near.sum() == partner.sum() == post.sum() == 1
+    pos.score = np.select([near, partner, post], [0.3, 0.25, 0.45], 0.0)
+    neg = ScanData(make_scan([(1.0, 0.5, R)], WALL), None, s)
+    neg.score = np.zeros_like(neg.score)
+    # the pair is near the label (not background); the lone post is
+    assert background_false([pos], 0.4, 0.2, 0.5, far_m=1.0) == 1.0
+    assert background_false([pos], 0.5, 0.2, 0.5, far_m=1.0) == 0.0
+    assert background_false([pos], 0.4, 0.2, 0.5, far_m=2.0) == 0.0
+    t, tp, rc, fp = choose_thresholds([pos], [neg], 0.5, 0.5)
+    assert t < 0.45 and (rc, fp) == (1.0, 0.0)  # the negatives alone let the post through
+    t, tp, rc, fp = choose_thresholds([pos], [neg], 0.5, 0.5, background_far_m=1.0)
+    assert t == 0.5 and tp <= 0.25 and rc == 1.0

@@ -55,6 +55,6 @@ def test_learned_figures_held_out():
     pos = [s for n in ("positive_6", "positive_7") for s in read_positive(n)]
     neg = [s for t in ("/rear_scan", "/right_scan") for s in read_negative(t)]
     sc = score(make_detector("learned"), pos, neg)
-    # measured 0.894 recall at 0.93 false persons/scan (docs/laser_legs.md)
+    # measured 0.884 recall at 0.97 false persons/scan (docs/laser_legs.md)
     assert sc.recall > 0.85
     assert sc.false_candidates_per_scan < 1.2

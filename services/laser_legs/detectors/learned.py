@@ -22,7 +22,10 @@ project whose recordings we evaluate on; our own feature set and code.
    * context: distance to the nearest other segment, its width and point count, how many
      segments lie within 1 m and within 0.6 m, and — when the nearest segment lies within
      0.6 m, a possible second leg — its circle and line residuals, radius, chord depth,
-     larger background step and range difference (else sentinel values).
+     larger background step and range difference (else sentinel values). (No free-space
+     features — distance to the nearest other scan point, points within 0.5 m: they describe
+     the room's layout around the segment, and in cross-validation on rooms left out of
+     training they raised the false persons; ``train.py``.)
 
 3. The forest's vote share for "leg" is each segment's score. Legs are paired as in the thesis
    (500 mm, closest first) among the segments scoring at least ``min(threshold,
@@ -91,8 +94,6 @@ FEATURES = (
     "neighbour_chord_depth_m",
     "neighbour_step_max_m",
     "neighbour_range_diff_m",
-    "nearest_other_point_m",
-    "other_points_within_0_5m",
 )
 
 #: Range steps to the neighbouring beams are capped here (a beam without return counts as far).
@@ -123,8 +124,8 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """
 
     model_path: str = ""  # "" = the model shipped with the package
-    threshold: float = 0.30  # vote share for a one-leg person (train.py, cross-validation)
-    pair_threshold: float = 0.20  # vote share of both legs of a two-leg person (same)
+    threshold: float = 0.35  # vote share for a one-leg person (train.py, cross-validation)
+    pair_threshold: float = 0.15  # vote share of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
     max_width_m: float = 0.6
@@ -302,19 +303,6 @@ def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
         cols += list(np.where(partner, shape, _NO_PARTNER))
     else:
         cols += [CONTEXT_CAP_M, 0.0, 0.0, 0.0, 0.0, *_NO_PARTNER[:, 0].tolist()]
-    # free space around: the scan's other points (also those of walls and other wide segments)
-    vi = valid.nonzero()[0]
-    d2 = cx[:, None] - x[vi]  # squared distances, in place
-    d2 *= d2
-    dy2 = cy[:, None] - y[vi]
-    dy2 *= dy2
-    d2 += dy2
-    vpos = np.cumsum(valid) - 1  # column of each valid beam in d2
-    d2[cid, vpos[idx]] = np.inf  # a segment's own points do not count
-    cols += [
-        np.minimum(np.sqrt(d2.min(axis=1)), CONTEXT_CAP_M),
-        np.count_nonzero(d2 < 0.25, axis=1),
-    ]
     if k > 1:  # every column an array of k values: one conversion
         out = np.array(cols, dtype=np.float32)
     else:
