@@ -291,7 +291,6 @@ class Track:
         "last_seen_ns",
         "misses",
         "steps",
-        "velocity",
     )
 
     def __init__(self, track_id: int, estimator: Estimator, stamp_ns: int) -> None:
@@ -301,12 +300,10 @@ class Track:
         self.hits = 1
         self.born_ns = stamp_ns
         self.last_seen_ns = stamp_ns
-        self.velocity = np.zeros(2)
-        """The person's recent velocity (current robot frame), for coasting."""
-        self.anchor: np.ndarray | None = None
-        """Position after the last update (current robot frame), for :attr:`velocity`."""
-        self.steps: deque[tuple[int, np.ndarray]] = deque()
-        """(stamp, velocity between two updates) of the recent updates (current robot frame)."""
+        self.anchor: tuple[float, float] | None = None
+        """Position after the last update, in the odometry frame (for coasting)."""
+        self.steps: deque[tuple[int, float, float]] = deque()
+        """(stamp, vx, vy): velocity between two updates, odometry frame, recent updates."""
 
     @property
     def position(self) -> np.ndarray:
@@ -413,13 +410,6 @@ class Tracker:
             self.steps_without_odometry += 1
         self._last_pose = pose
         self._last_stamp = stamp
-        if rotation is not None:
-            for t in self.tracks.values():
-                t.velocity = rotation @ t.velocity
-                if t.anchor is not None:
-                    t.anchor = rotation @ t.anchor + translation
-                if t.steps:
-                    t.steps = deque((k, rotation @ v) for k, v in t.steps)
 
         # 2. predict (after the ego-motion): all tracks in one batch where the estimator can
         motion_all = getattr(self._cls, "motion_all", None)
@@ -432,8 +422,8 @@ class Tracker:
                 t.estimator.predict(dt, t.misses)
         if s.coast_velocity_s > 0:
             for t in self.tracks.values():  # hidden since the last scan: moving on (settings)
-                if t.misses > 0 and getattr(t.estimator, "coasts_in_place", False):
-                    t.estimator.ego_motion(_I2, t.velocity * dt)
+                if t.misses > 0 and t.steps and getattr(t.estimator, "coasts_in_place", False):
+                    t.estimator.ego_motion(_I2, self._velocity(t, pose) * dt)
 
         # the target before this scan's update, for a rollback by late vision
         prior = None
@@ -499,7 +489,7 @@ class Tracker:
             t = self.tracks[tid]
             if tid in matched:
                 if s.coast_velocity_s > 0:
-                    self._learn_velocity(t, stamp)
+                    self._learn_velocity(t, stamp, pose)
                 t.misses = 0
                 t.hits += 1
                 t.last_seen_ns = stamp
@@ -547,19 +537,37 @@ class Tracker:
         self._index += 1
         return self._outputs(stamp, candidates.frame_id, flags, sources)
 
-    def _learn_velocity(self, t: Track, stamp: int) -> None:
-        """The track's velocity: the median of its step velocities (``coast_velocity_s``)."""
-        xy = np.array(t.position, dtype=float)
+    def _learn_velocity(self, t: Track, stamp: int, pose: Pose | None) -> None:
+        """Record the track's step velocity (odometry frame: nothing to turn with the robot)."""
+        m = t.estimator.mean
+        x, y = float(m[0]), float(m[1])
+        if pose is not None:
+            c, sn = math.cos(pose[2]), math.sin(pose[2])
+            x, y = pose[0] + c * x - sn * y, pose[1] + sn * x + c * y
         if t.anchor is not None and stamp > t.last_seen_ns:
-            t.steps.append((stamp, (xy - t.anchor) / ((stamp - t.last_seen_ns) / _NS)))
+            gap = (stamp - t.last_seen_ns) / _NS
+            t.steps.append((stamp, (x - t.anchor[0]) / gap, (y - t.anchor[1]) / gap))
             oldest = stamp - self.settings.coast_velocity_s * _NS
             while t.steps[0][0] < oldest:
                 t.steps.popleft()
-            v = np.median(np.array([v for _, v in t.steps]), axis=0)
-            speed = float(np.hypot(*v))
-            cap = self.settings.coast_max_speed_mps
-            t.velocity = v * (cap / speed) if speed > cap else v
-        t.anchor = xy
+        t.anchor = (x, y)
+
+    def _velocity(self, t: Track, pose: Pose | None) -> np.ndarray:
+        """The median of the track's recent step velocities, in the robot frame of ``pose``,
+        clipped to ``coast_max_speed_mps`` (computed only for coasting tracks)."""
+        if not t.steps:
+            return np.zeros(2)
+        v = np.median(np.array([(vx, vy) for _, vx, vy in t.steps]), axis=0)
+        if pose is not None:
+            v = _rot(-pose[2]) @ v
+        speed = float(np.hypot(*v))
+        cap = self.settings.coast_max_speed_mps
+        return v * (cap / speed) if speed > cap else v
+
+    def velocity_of(self, track_id: int) -> np.ndarray:
+        """A track's coasting velocity (robot frame of the last scan), (0, 0) if unknown."""
+        t = self.tracks.get(track_id)
+        return np.zeros(2) if t is None else self._velocity(t, self._last_pose)
 
     def _units(
         self, candidates: PersonCandidates, z: np.ndarray
@@ -620,8 +628,7 @@ class Tracker:
         tid = self._next_id
         self._next_id += 1
         rng = np.random.default_rng([self.settings.seed, tid])
-        self.tracks[tid] = track = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
-        track.anchor = np.array(xy[:2], dtype=float)
+        self.tracks[tid] = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
         return tid
 
     def _set_target(self, tid: int) -> None:
