@@ -628,7 +628,9 @@ class Tracker:
         tid = self._next_id
         self._next_id += 1
         rng = np.random.default_rng([self.settings.seed, tid])
-        self.tracks[tid] = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
+        self.tracks[tid] = track = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
+        if self.settings.coast_velocity_s > 0:
+            self._learn_velocity(track, stamp_ns, self._now[1])  # where it was first seen
         return tid
 
     def _set_target(self, tid: int) -> None:
