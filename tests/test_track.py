@@ -4,7 +4,6 @@ round trip sim -> record -> track giving the tracks of the live run."""
 from __future__ import annotations
 
 import csv
-import os
 import subprocess
 import sys
 from importlib import resources
@@ -120,11 +119,6 @@ def test_lockstep_runs_and_the_track_of_their_recording_give_the_same_tracks(tmp
 
 
 @pytest.mark.multiprocess
-@pytest.mark.skipif(
-    os.environ.get("FOLLOWBOT_VISION_DETERMINISM") != "1",
-    reason="opt-in (FOLLOWBOT_VISION_DETERMINISM=1): with vision, two live lock-step runs were "
-    "identical in 18 of 19 tries; a race near the model's acquisition remains (docs/recording.md)",
-)
 def test_two_lockstep_runs_with_vision_give_the_same_tracks(tmp_path):
     """With vision as its own process too: verifications, tracks and commands alike, run to run
     (vision pairs each scan with the image due at it, whichever arrives first)."""

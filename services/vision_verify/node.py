@@ -223,7 +223,7 @@ class VisionVerify:
             # lock-step: a model built while this scan was fed to the builder judges from the
             # next scan on, whether image or candidates came last (reruns must agree)
             self.count("scan_no_model")
-            self.publish_empty(msg)
+            self.publish_empty(msg, model_id=0)  # not the model this scan may have built
             return
         if msg.stamp_ns <= self.last_judged_ns or msg.stamp_ns in self.pending:
             self.count("scan_duplicate_or_old")
@@ -361,14 +361,17 @@ class VisionVerify:
                 model.features = adapt_features(model.features, seen, s.adapt_rate)
                 self.model_dirty = True
 
-    def publish_empty(self, msg: PersonCandidates) -> None:
+    def publish_empty(self, msg: PersonCandidates, model_id: int | None = None) -> None:
+        """An answer that judged nothing; ``model_id`` defaults to the current model's."""
+        if model_id is None:
+            model_id = self.model.model_id if self.model else 0
         self.last_judged_ns = max(self.last_judged_ns, msg.stamp_ns)
         self.pub_verification.put(
             Verification(
                 stamp_ns=msg.stamp_ns,
                 frame_id=msg.frame_id,
                 image_stamp_ns=0,
-                model_id=self.model.model_id if self.model else 0,
+                model_id=model_id,
                 verifier=self.verifier.name,
                 chosen=-1,
                 threshold=self.threshold,
