@@ -30,6 +30,7 @@ same numbers as the per-track one up to floating-point rounding of the stacked m
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from collections.abc import Sequence
 from typing import Annotated, Literal
@@ -99,6 +100,14 @@ def sorted_copy_resample(weights: np.ndarray, rng: np.random.Generator | None = 
 
 
 _RESAMPLERS = {"systematic": systematic_resample, "sorted_copy": sorted_copy_resample}
+
+
+@functools.lru_cache(maxsize=64)
+def _gather_base(tracks: int, m: int) -> np.ndarray:
+    """(tracks, 4, 1) offsets of each (track, row) in a C-ordered (tracks, 4, m) cloud stack."""
+    base = (np.arange(tracks)[:, None, None] * 4 + np.arange(4)[None, :, None]) * m
+    base.flags.writeable = False  # shared by every call with these sizes
+    return base
 
 
 class ParticleEstimator:
@@ -331,7 +340,9 @@ class ParticleEstimator:
             np.clip(idx, 0, m - 1, out=idx)
         else:
             idx = np.stack([e._resample(w[i], e.rng) for i, e in enumerate(estimators)])
-        out = np.take_along_axis(p, idx[:, None, :], axis=2)
+        # gather each track's resampled particles: one flat take (take_along_axis does the
+        # same with ~3x the overhead at these sizes)
+        out = np.take(p.ravel(), _gather_base(len(estimators), m) + idx[:, None, :])
         d = out - out.mean(axis=2, keepdims=True)
         covs = np.matmul(d, d.transpose(0, 2, 1)) / m
         for i, e in enumerate(estimators):
