@@ -28,6 +28,7 @@ from .core import (
     View,
     bhattacharyya,
 )
+from .verifiers.histogram import HistogramVerifier, model_window
 
 __all__ = ["ReferenceFeatures", "ReferenceHistogramVerifier"]
 
@@ -91,8 +92,6 @@ class ReferenceHistogramVerifier:
     default_threshold = 0.8
 
     def __init__(self) -> None:
-        from .verifiers.histogram import HistogramVerifier
-
         self._window = HistogramVerifier().window
 
     def distances(self, frame, views: Sequence[View], model: Model) -> list[float | None]:
@@ -111,13 +110,7 @@ class ReferenceHistogramVerifier:
 
     def _model(self, v: View, model: Model) -> dict[str, np.ndarray]:
         win = self._window(v)
-        if win is None or "patch_bgr" not in model.features:
-            return model.features
-        x0, y0, x1, y1 = (float(c) for c in model.features["patch_rect"])
-        w, h = x1 - x0, y1 - y0
-        sub = tuple(
-            round(c) for c in (x0 + win[0] * w, y0 + win[1] * h, x0 + win[2] * w, y0 + win[3] * h)
-        )
-        if sub[2] - sub[0] < 2 or sub[3] - sub[1] < 2:
+        sub = None if win is None else model_window(model.features, win)
+        if sub is None:
             return model.features
         return ReferenceFeatures(model.features["patch_bgr"]).histograms(sub)

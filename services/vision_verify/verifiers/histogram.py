@@ -127,24 +127,15 @@ class HistogramVerifier:
     def _model_for(self, v: View, model: Model, whole: tuple) -> tuple:
         """The model's (colour, edges) histograms for the part of the body ``v`` shows."""
         win = self.window(v)
-        patch = model.features.get("patch_bgr")
-        if win is None or patch is None or "patch_rect" not in model.features:
+        sub = None if win is None else model_window(model.features, win)
+        if sub is None:
             return whole
+        patch = model.features["patch_bgr"]
         key = (model.model_id, id(patch), win)
         hit = self._windows.get(key)
         if hit is not None:
             self._windows.move_to_end(key)
             return hit
-        px0, py0, px1, py1 = (float(c) for c in model.features["patch_rect"])
-        w, h = px1 - px0, py1 - py0
-        sub = (
-            round(px0 + win[0] * w),
-            round(py0 + win[1] * h),
-            round(px0 + win[2] * w),
-            round(py0 + win[3] * h),
-        )
-        if sub[2] - sub[0] < 2 or sub[3] - sub[1] < 2:
-            return whole
         if self._patch is None or self._patch[:2] != key[:2]:
             self._patch = (*key[:2], ImageFeatures(np.ascontiguousarray(patch, dtype=np.uint8)))
         feats = self._patch[2]
@@ -156,6 +147,23 @@ class HistogramVerifier:
         if len(self._windows) > 256:
             self._windows.popitem(last=False)
         return hit
+
+
+def model_window(features: dict[str, np.ndarray], win: tuple[float, ...]) -> Rect | None:
+    """The pixels of ``features["patch_bgr"]`` that window ``win`` (fractions left, top,
+    right, bottom of the model's rectangle, :meth:`HistogramVerifier.window`) covers; None when
+    the model kept no pixels or the window is under 2 pixels wide or high."""
+    if "patch_bgr" not in features or "patch_rect" not in features:
+        return None
+    x0, y0, x1, y1 = (float(c) for c in features["patch_rect"])
+    w, h = x1 - x0, y1 - y0
+    sub = (
+        round(x0 + win[0] * w),
+        round(y0 + win[1] * h),
+        round(x0 + win[2] * w),
+        round(y0 + win[3] * h),
+    )
+    return sub if sub[2] - sub[0] >= 2 and sub[3] - sub[1] >= 2 else None
 
 
 def _model_side(q: np.ndarray, bins: int) -> np.ndarray | None:
