@@ -226,16 +226,28 @@ def test_vote_share_counts_the_trees_voting_leg():
     assert vote_share(model, f) == pytest.approx(want)
 
 
+def _labelled_pair_and_post():
+    """Training data of one scan: a person at (2, 0) whose leg at (2, 0.15) is labelled, and a
+    post at (2, 1.5). Returns the ScanData and masks of its labelled leg, partner and post."""
+    from followbot.services.laser_legs.train import ScanData
+
+    legs = person_legs(2.0, 0.0, separation_m=0.3, leg_radius_m=R)
+    pos = ScanData(
+        make_scan([*legs, (2.0, 1.5, R)], WALL), np.array([[2.0, 0.15]]), LearnedSettings()
+    )
+    near = np.hypot(pos.cx - 2.0, pos.cy - 0.15) < 0.1
+    partner = np.hypot(pos.cx - 2.0, pos.cy + 0.15) < 0.1
+    post = np.hypot(pos.cx - 2.0, pos.cy - 1.5) < 0.1
+    assert near.sum() == partner.sum() == post.sum() == 1
+    return pos, near, partner, post
+
+
 def test_training_figures_and_threshold_choice_follow_the_detector_rule():
     from followbot.services.laser_legs.train import ScanData, choose_thresholds, figures
 
     s = LearnedSettings()
-    legs = person_legs(2.0, 0.0, separation_m=0.3, leg_radius_m=R)
-    pos = ScanData(make_scan([*legs, (2.0, 1.5, R)], WALL), np.array([[2.0, 0.15]]), s)
     # the labelled leg, its partner and a lone object: the label is found only via the pair
-    near = np.hypot(pos.cx - 2.0, pos.cy - 0.15) < 0.1
-    partner = np.hypot(pos.cx - 2.0, pos.cy + 0.15) < 0.1
-    assert near.sum() == 1 and partner.sum() == 1
+    pos, near, partner, _post = _labelled_pair_and_post()
     pos.score = np.where(near, 0.3, np.where(partner, 0.25, 0.0))
     neg = ScanData(make_scan([(1.0, 0.5, R), (2.0, -1.0, R)], WALL), None, s)
     posts = np.hypot(neg.cx - 1.0, neg.cy - 0.5) < 0.1
@@ -253,12 +265,7 @@ def test_threshold_choice_can_bound_the_labelled_scans_background():
     from followbot.services.laser_legs.train import ScanData, background_false, choose_thresholds
 
     s = LearnedSettings()
-    legs = person_legs(2.0, 0.0, separation_m=0.3, leg_radius_m=R)
-    pos = ScanData(make_scan([*legs, (2.0, 1.5, R)], WALL), np.array([[2.0, 0.15]]), s)
-    near = np.hypot(pos.cx - 2.0, pos.cy - 0.15) < 0.1
-    partner = np.hypot(pos.cx - 2.0, pos.cy + 0.15) < 0.1
-    post = np.hypot(pos.cx - 2.0, pos.cy - 1.5) < 0.1  # 1.35 m from the label: background
-    assert near.sum() == partner.sum() == post.sum() == 1
+    pos, near, partner, post = _labelled_pair_and_post()  # the post: 1.35 m from the label
     pos.score = np.select([near, partner, post], [0.3, 0.25, 0.45], 0.0)
     neg = ScanData(make_scan([(1.0, 0.5, R)], WALL), None, s)
     neg.score = np.zeros_like(neg.score)
