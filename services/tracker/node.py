@@ -96,9 +96,9 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
             while held_models and held_models[0].model_id <= wanted:
                 tracker.set_target_model(held_models.pop(0))
         stepped.append(msg.stamp_ns)
-        target, people = tracker.step(msg)
-        target_pub.put(target)
-        people_pub.put(people)
+        target = tracker.step_target(msg)
+        target_pub.put(target)  # the controller's input first, then the bookkeeping
+        people_pub.put(tracker.step_rest())
         notes = [f"status:{target.status}", *target.flags]
         if held is not None:
             notes += [f"lockstep_waits={held.waits}", f"lockstep_wait_timeouts={held.timeouts}"]

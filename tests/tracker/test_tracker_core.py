@@ -17,6 +17,7 @@ from followbot.schemas import (
     TargetModel,
     Verification,
     VerifiedCandidate,
+    encode,
 )
 from followbot.services.runtime.plugins import UnknownPlugin
 from followbot.services.tracker.core import (
@@ -167,6 +168,38 @@ def test_particle_ego_motion_rotates_velocities_too():
     pf.ego_motion(rot, trans)
     assert np.allclose(pf.particles[0:2], [[0.0], [-1.0]], atol=1e-12)
     assert np.allclose(pf.particles[2:4], [[0.0], [-1.0]], atol=1e-12)
+
+
+def test_deferred_resampling_and_draws_ahead_give_the_numbers_of_doing_them_at_once():
+    """update() weighs (eq. 3-36) and estimates (eq. 3-38); the resampling waits until the
+    cloud is next used, and draw_ahead() takes the next prediction's normals early. Both must
+    give exactly what resampling at once and drawing at the prediction give."""
+    m = 150
+    pf = ParticleEstimator(2.0, 0.0, ParticleSettings(particles=m), np.random.default_rng(5))
+    ref = np.random.default_rng(5)  # the same stream, drawn by hand in the thesis's order
+    pf.predict(0.12)
+    assert np.allclose(pf.particles[2:4], ref.standard_normal((2, m)) * 1.0)  # eq. 3-30
+    before = pf.particles.copy()
+    z = np.array([2.1, 0.15])
+    pf.update(z)
+    d_i, a_i = np.hypot(before[0], before[1]), np.arctan2(before[1], before[0])
+    log_w = -((np.hypot(*z) - d_i) ** 2) / 0.1**2 - (math.atan2(z[1], z[0]) - a_i) ** 2 / (
+        math.radians(5.0) ** 2
+    )
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    assert np.allclose(pf.mean, before @ w, rtol=0, atol=1e-12)
+    d = before - pf.mean[:, None]
+    assert np.allclose(pf.covariance, (d * w) @ d.T, rtol=0, atol=1e-12)  # the posterior
+    posterior = pf.covariance.copy()
+    pf.draw_ahead()  # the resampling's uniform first, then the next normals
+    assert np.array_equal(pf.particles, before[:, systematic_resample(w, ref)])
+    assert np.array_equal(pf.covariance, posterior)  # resampling keeps the posterior's
+    after = pf.particles.copy()
+    pf.predict(0.12)
+    v = ref.standard_normal((2, m))
+    assert np.allclose(pf.particles[2:4], v, rtol=0, atol=1e-12)
+    assert np.allclose(pf.particles[0:2], after[0:2] + v * 0.12, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("resampler", ["systematic", "sorted_copy"])
@@ -423,6 +456,31 @@ def test_repeated_stamp_is_answered_without_changing_the_state():
     b, _ = trk.step(cands(SCAN_NS, (5.0, 0.0)))
     assert b.stamp_ns == a.stamp_ns and "out_of_order" in b.flags
     assert (b.x_m, b.y_m) == (a.x_m, a.y_m)
+
+
+def test_step_target_answers_first_and_step_rest_finishes_the_scan():
+    """A node publishes step_target's answer, then step_rest's People. Skipping step_rest
+    (a caller that only wants targets) must not change the targets: the next step_target
+    finishes the scan itself. step_rest without a step_target before it is an error."""
+    walkers = [(2.0, 0.0), (3.0, 1.0), (1.5, -1.2)]
+
+    def scan(k):
+        return cands(k * SCAN_NS, *[(x + 0.03 * k, y - 0.02 * k) for x, y in walkers])
+
+    full, bare = (
+        Tracker(TrackerSettings(acquire="nearest")),
+        Tracker(TrackerSettings(acquire="nearest")),
+    )
+    for k in range(12):
+        for trk in (full, bare):
+            trk.add_odometry(odom(k * SCAN_NS, 0.04 * k, 0.01 * k, 0.03 * k))
+        a, people = full.step(scan(k))
+        b = bare.step_target(scan(k))
+        assert encode(a) == encode(b)
+        assert (people.target_id == a.track_id and len(people.tracks) == len(walkers)) or k < 2
+    assert bare.step_rest().tracks == people.tracks
+    with pytest.raises(RuntimeError, match="step_target"):
+        bare.step_rest()
 
 
 def rejection(stamp_ns, xy, distance, threshold=0.8):

@@ -20,11 +20,19 @@ numpy calls on rows, the random draws fill a preallocated buffer in place, and n
 allocated per particle. Randomness comes from a seeded ``numpy.random.Generator`` only.
 
 With several people the tracker calls the class's batch steps (:meth:`ParticleEstimator.
-motion_all`, :meth:`~ParticleEstimator.update_all`, :meth:`~ParticleEstimator.covariance_all`):
+motion_all`, :meth:`~ParticleEstimator.update_all`, :meth:`~ParticleEstimator.settle_all`):
 the clouds are stacked into one (T, 4, m) array and every step is the same handful of numpy
 calls for all T tracks, so ten people cost little more than one (issue 8's 10-person latency).
 Each track still draws from its own Generator in the same order, so a batch step gives the
 same numbers as the per-track one up to floating-point rounding of the stacked matrix products.
+
+Resampling is deferred: :meth:`~ParticleEstimator.update` weighs the cloud and computes the
+estimate, and the cloud is resampled when it is next used (the next prediction, a snapshot,
+reading :attr:`~ParticleEstimator.particles`) or when the tracker calls :meth:`~ParticleEstimator.
+settle_all` after it has published the target. The estimate, the random draws and so every
+later step are the same as resampling at once; the tracker's answer just leaves sooner. After an
+update, :attr:`~ParticleEstimator.covariance` is the weighted (posterior) covariance of the cloud
+(sum_i w_i (s_i - s_hat)(s_i - s_hat)^T); after a prediction, the spread of the cloud.
 """
 
 from __future__ import annotations
@@ -102,6 +110,16 @@ def sorted_copy_resample(weights: np.ndarray, rng: np.random.Generator | None = 
 _RESAMPLERS = {"systematic": systematic_resample, "sorted_copy": sorted_copy_resample}
 
 
+class _Batch:
+    """The stacked clouds (T, 4, m) and weights (T, m) of one :meth:`ParticleEstimator.
+    update_all`, kept until :meth:`ParticleEstimator.settle_all` resamples them."""
+
+    __slots__ = ("p", "w")
+
+    def __init__(self, p: np.ndarray, w: np.ndarray) -> None:
+        self.p, self.w = p, w
+
+
 @functools.lru_cache(maxsize=64)
 def _gather_base(tracks: int, m: int) -> np.ndarray:
     """(tracks, 4, 1) offsets of each (track, row) in a C-ordered (tracks, 4, m) cloud stack."""
@@ -136,12 +154,16 @@ class ParticleEstimator:
         self._inv_sd2 = 1.0 / s.range_std_m**2
         self._inv_sa2 = 1.0 / math.radians(s.bearing_std_deg) ** 2
         # thesis 4.5, eq. 4-8/4-9: every particle at the model position, velocity 0, w = 1/m
-        self.particles = np.zeros((4, m))
-        self.particles[0] = x_m
-        self.particles[1] = y_m
+        self._p = np.zeros((4, m))
+        self._p[0] = x_m
+        self._p[1] = y_m
         self._spare = np.empty((4, m))
         self._mean = np.array([x_m, y_m, 0.0, 0.0])
-        self._cov: np.ndarray | None = None  # covariance of the current particles, when known
+        self._cov: np.ndarray | None = None  # covariance of the current estimate, when known
+        self._w: np.ndarray | None = None  # weights of an update not yet resampled (m,)
+        self._batch: _Batch | None = None  # the update_all stack self._p and self._w live in
+        self._ahead = np.empty((2, m))  # the next prediction's normals, when drawn ahead
+        self._ahead_ready = False
         self._dt_s = 0.0
         self._moved = False
 
@@ -159,19 +181,44 @@ class ParticleEstimator:
         return self._mean
 
     @property
+    def particles(self) -> np.ndarray:
+        """(4, m) the cloud, resampled (a deferred resampling is done first)."""
+        if self._w is not None:
+            self.settle()
+        return self._p
+
+    @property
     def covariance(self) -> np.ndarray:
-        """(4, 4) spread of the current (resampled) particles."""
+        """(4, 4) after an update the weighted covariance of the cloud about the estimate,
+        otherwise the spread of the (resampled, propagated) cloud."""
         if self._cov is None:
-            d = self.particles - self.particles.mean(axis=1, keepdims=True)
-            self._cov = (d @ d.T) / self._m
+            p = self._p
+            if self._w is not None:
+                d = p - self._mean[:, None]
+                self._cov = (d * self._w) @ d.T
+            else:
+                d = p - p.mean(axis=1, keepdims=True)
+                self._cov = (d @ d.T) / self._m
         return self._cov
+
+    def settle(self) -> None:
+        """Do a deferred resampling now (the posterior covariance is kept first)."""
+        w = self._w
+        if w is None:
+            return
+        self.covariance  # noqa: B018 - cache the weighted covariance before the cloud changes
+        p = self._p
+        np.take(p, self._resample(w, self.rng), axis=1, out=self._spare)
+        self._p, self._spare = self._spare, p
+        self._w = None
+        self._batch = None
 
     # ------------------------------------------------------------------ steps
 
     def ego_motion(self, rotation: np.ndarray, translation: np.ndarray) -> None:
         """p <- R p + t, v <- R v for every particle (the correct SE(2) change, core.py)."""
-        self._cov = None
         p = self.particles
+        self._cov = None
         p[0:2] = rotation @ p[0:2]
         p[0] += translation[0]
         p[1] += translation[1]
@@ -181,8 +228,8 @@ class ParticleEstimator:
 
     def predict(self, dt_s: float, misses: int = 0) -> None:
         """Eq. 3-30: velocities drawn afresh from N(0, sigma_v^2), positions moved v dT."""
-        self._cov = None
         p = self.particles
+        self._cov = None
         self._draw_velocities(p[2:4], dt_s)
         p[0:2] += p[2:4] * dt_s
         self._dt_s = dt_s
@@ -192,14 +239,30 @@ class ParticleEstimator:
         """Rows 2..3 of the cloud (a contiguous (2, m) block), in place, from this rng."""
         s = self.settings
         if s.velocity_model == "random_walk" or not self._moved:
-            self.rng.standard_normal(out=v)  # in place: rows 2..3 are one contiguous block
+            self._normals(v)  # in place: rows 2..3 are one contiguous block
             v *= s.velocity_std_mps
             self._moved = True
         else:
             noise = self._spare[0:2]
-            self.rng.standard_normal(out=noise)
+            self._normals(noise)
             noise *= s.accel_std_mps2 * dt_s
             v += noise
+
+    def _normals(self, out: np.ndarray) -> None:
+        """Fill ``out`` (2, m) with the next standard normals of this rng (drawn ahead or now)."""
+        if self._ahead_ready:
+            np.copyto(out, self._ahead)
+            self._ahead_ready = False
+        else:
+            self.rng.standard_normal(out=out)
+
+    def draw_ahead(self) -> None:
+        """Draw the next prediction's normals now (after a deferred resampling, whose uniform
+        comes first): the same numbers in the same order, off the path to the next answer."""
+        self.settle()
+        if not self._ahead_ready:
+            self.rng.standard_normal(out=self._ahead)
+            self._ahead_ready = True
 
     def distance(self, points: np.ndarray, misses: int = 0) -> np.ndarray:
         """Euclidean distance of each candidate (n, 2) to the predicted position."""
@@ -210,9 +273,10 @@ class ParticleEstimator:
         return s.gate_m + s.gate_growth * s.velocity_std_mps * self._dt_s * math.sqrt(misses)
 
     def update(self, point: np.ndarray) -> None:
-        """Weight by range and bearing (eq. 3-36), normalise, estimate (eq. 3-38), resample."""
-        self._cov = None
+        """Weight by range and bearing (eq. 3-36), normalise, estimate (eq. 3-38); the
+        resampling is deferred (module docstring)."""
         p = self.particles
+        self._cov = None
         zx, zy = float(point[0]), float(point[1])
         d_m = math.hypot(zx, zy)
         a_m = math.atan2(zy, zx)
@@ -232,9 +296,8 @@ class ParticleEstimator:
         w = np.exp(dd, out=dd)
         w /= w.sum()
         self._mean = p @ w  # eq. 3-38
-        idx = self._resample(w, self.rng)
-        np.take(p, idx, axis=1, out=self._spare)
-        self.particles, self._spare = self._spare, p
+        self._w = w
+        self._batch = None
 
     def expired(self) -> bool:
         return False
@@ -243,9 +306,11 @@ class ParticleEstimator:
         """An independent copy of the cloud (for the tracker's rollback); cheaper than
         ``copy.deepcopy``. The copy shares this estimator's Generator: what either draws next
         depends only on the order of the calls, so runs stay deterministic."""
+        self.settle()
         c = copy.copy(self)
-        c.particles = self.particles.copy()
-        c._spare = np.empty_like(self._spare)
+        c._p = self._p.copy()
+        c._spare = np.empty_like(c._p)
+        c._ahead, c._ahead_ready = np.empty_like(self._ahead), False  # draws afresh
         c._mean = self._mean.copy()
         return c
 
@@ -272,7 +337,8 @@ class ParticleEstimator:
                     e.ego_motion(rotation, translation)
                 e.predict(dt_s)
             return
-        p = np.stack([e.particles for e in estimators])  # (T, 4, m)
+        cls.settle_all(estimators)
+        p = np.stack([e._p for e in estimators])  # (T, 4, m)
         if rotation is not None:
             p[:, 0:2] = rotation @ p[:, 0:2]
             p[:, 0] += translation[0]
@@ -283,7 +349,7 @@ class ParticleEstimator:
         p[:, 0:2] += p[:, 2:4] * dt_s
         means = p.mean(axis=2)
         for i, e in enumerate(estimators):
-            e.particles = p[i]
+            e._p = p[i]
             e._mean = means[i]
             e._dt_s = dt_s
             e._cov = None
@@ -307,8 +373,8 @@ class ParticleEstimator:
                 e.update(z)
             return
         e0 = estimators[0]
-        m = e0._m
-        p = np.stack([e.particles for e in estimators])  # (T, 4, m)
+        cls.settle_all(estimators)
+        p = np.stack([e._p for e in estimators])  # (T, 4, m)
         zx = points[:, 0:1]
         zy = points[:, 1:2]
         a_m = np.arctan2(zy, zx)
@@ -326,11 +392,53 @@ class ParticleEstimator:
         w = np.exp(dd, out=dd)
         w /= w.sum(axis=1, keepdims=True)
         means = np.matmul(p, w[:, :, None])[:, :, 0]  # eq. 3-38 per track
+        batch = _Batch(p, w)
+        for i, e in enumerate(estimators):
+            e._p = p[i]
+            e._w = w[i]
+            e._batch = batch
+            e._mean = means[i]
+            e._cov = None
+
+    @classmethod
+    def prepare_all(cls, estimators: Sequence[ParticleEstimator]) -> None:
+        """Between scans, after the answer has left: :meth:`settle_all`, then
+        :meth:`draw_ahead` for each."""
+        cls.settle_all(estimators)
+        for e in estimators:
+            if not e._ahead_ready:
+                e.rng.standard_normal(out=e._ahead)
+                e._ahead_ready = True
+
+    @classmethod
+    def settle_all(cls, estimators: Sequence[ParticleEstimator]) -> None:
+        """:meth:`settle` for all: the posterior covariances and the resampling of every
+        estimator with a deferred resampling, in one batch where they can be."""
+        pending = [e for e in estimators if e._w is not None]
+        if len(pending) < 2 or not cls._batchable(pending):
+            for e in pending:
+                e.settle()
+            return
+        e0 = pending[0]
+        m = e0._m
+        batch = e0._batch
+        if (
+            batch is not None
+            and len(batch.w) == len(pending)
+            and all(e._batch is batch for e in pending)
+        ):
+            p, w = batch.p, batch.w  # the update_all stack, untouched since
+        else:
+            p = np.stack([e._p for e in pending])
+            w = np.stack([e._w for e in pending])
+        means = np.stack([e._mean for e in pending])
+        d = p - means[:, :, None]
+        covs = np.matmul(d * w[:, None, :], d.transpose(0, 2, 1))  # posterior, per track
         if e0._resample is systematic_resample:
             # one searchsorted over all tracks: row r's cumulative weights are shifted by r
-            t = len(estimators)
+            t = len(pending)
             rows = np.arange(t)[:, None]
-            u = np.array([e.rng.random() for e in estimators])[:, None]
+            u = np.array([e.rng.random() for e in pending])[:, None]
             cumulative = np.cumsum(w, axis=1)
             cumulative += rows
             positions = (u + np.arange(m)) / m + rows
@@ -339,13 +447,13 @@ class ParticleEstimator:
             np.minimum(idx, m - 1, out=idx)  # round-off: a row may sum to 1 - eps
             np.clip(idx, 0, m - 1, out=idx)
         else:
-            idx = np.stack([e._resample(w[i], e.rng) for i, e in enumerate(estimators)])
+            idx = np.stack([e._resample(w[i], e.rng) for i, e in enumerate(pending)])
         # gather each track's resampled particles: one flat take (take_along_axis does the
         # same with ~3x the overhead at these sizes)
-        out = np.take(p.ravel(), _gather_base(len(estimators), m) + idx[:, None, :])
-        d = out - out.mean(axis=2, keepdims=True)
-        covs = np.matmul(d, d.transpose(0, 2, 1)) / m
-        for i, e in enumerate(estimators):
-            e.particles = out[i]
-            e._mean = means[i]
-            e._cov = covs[i]
+        out = np.take(p.ravel(), _gather_base(len(pending), m) + idx[:, None, :])
+        for i, e in enumerate(pending):
+            if e._cov is None:  # (one read before, e.g. the target's: the same value)
+                e._cov = covs[i]
+            e._p = out[i]
+            e._w = None
+            e._batch = None
