@@ -311,6 +311,8 @@ def run(quick: bool = False, pipeline: bool = True) -> dict:
             "e2e_p99_ms",
             "e2e_200hz_p50_ms",
             "e2e_200hz_p99_ms",
+            "e2e_together_p50_ms",
+            "e2e_together_p99_ms",
             "max_sustained_scans_per_s",
         ):
             figures[key] = p[key]

@@ -121,11 +121,12 @@ def in_process(k: int, n: int = 400, gap_s: float = 0.0) -> dict[str, dict[str, 
 
 
 class Pipeline:
-    """laser_legs, tracker and controller as processes, fed and watched by this one."""
+    """laser_legs, tracker and controller as processes, fed and watched by this one.
+    ``together``: the three in one process (``followbot run laser_legs+tracker+controller``)."""
 
     SERVICES = ("laser_legs", "tracker", "controller")
 
-    def __init__(self, log_dir) -> None:
+    def __init__(self, log_dir, together: bool = False) -> None:
         from followbot.services.runtime.bus import ZenohBus
         from followbot.services.runtime.node import Node
         from followbot.services.runtime.session import free_loopback_endpoint, open_session
@@ -153,8 +154,11 @@ class Pipeline:
         self.stages = StageProcesses(log_dir)
         settings = {"robot": self.robot, "zenoh": {"connect": [self.endpoint]},
                     "log_level": "warning"}  # fmt: skip
-        for s in self.SERVICES:
-            self.stages.start(s, settings)
+        if together:
+            self.stages.start("+".join(self.SERVICES), settings)
+        else:
+            for s in self.SERVICES:
+                self.stages.start(s, settings)
 
     def _on_cmd(self, cmd) -> None:
         self.arrivals.setdefault(cmd.stamp_ns, time.monotonic_ns())
@@ -216,7 +220,7 @@ def run(
     people = (1, 5, 10)
     n = 150 if quick else 600
     out: dict = {"in_process": {}, "in_process_40hz": {}, "e2e": {}, "e2e_200hz": {},
-                 "sustained": []}  # fmt: skip
+                 "e2e_together": {}, "sustained": []}  # fmt: skip
     for k in people:
         print(f"  in-process stages, {k} people ...", file=sys.stderr, flush=True)
         out["in_process"][k] = in_process(k, n=min(n, 300))
@@ -255,6 +259,26 @@ def run(
         out["max_sustained_scans_per_s"] = best
     finally:
         pipe.close()
+    # the same stages as one process (followbot run laser_legs+tracker+controller): two hops
+    pipe = Pipeline(log_dir, together=True)
+    try:
+        print("  starting laser_legs+tracker+controller (one process) ...", file=sys.stderr,
+              flush=True)  # fmt: skip
+        pipe.wait_ready()
+        for k in people:
+            print(f"  end to end at 40 Hz, one process, {k} people ...", file=sys.stderr,
+                  flush=True)  # fmt: skip
+            bank = scan_bank(k, 200)
+            pipe.stream(bank, 40.0, 40)
+            stamps = pipe.stream(bank, 40.0, n // 2 if quick else n)
+            lat = pipe.answered(stamps)
+            p50, p99 = _pct(lat) if lat else (math.nan, math.nan)
+            out["e2e_together"][k] = {"p50_ms": p50, "p99_ms": p99, "sent": len(stamps),
+                                      "answered": len(lat)}  # fmt: skip
+    finally:
+        pipe.close()
+    out["e2e_together_p50_ms"] = max(e["p50_ms"] for e in out["e2e_together"].values())
+    out["e2e_together_p99_ms"] = max(e["p99_ms"] for e in out["e2e_together"].values())
     out["e2e_p50_ms"] = max(e["p50_ms"] for e in out["e2e"].values())
     out["e2e_p99_ms"] = max(e["p99_ms"] for e in out["e2e"].values())
     out["e2e_200hz_p50_ms"] = max(e["p50_ms"] for e in out["e2e_200hz"].values())
@@ -283,6 +307,11 @@ def format_report(p: dict) -> str:
                          f"{s['stage_p99_ms']:7.3f}  {at40}")  # fmt: skip
     lines += ["", "end to end over Zenoh, scan -> cmd_vel  p50 ms   p99 ms   answered   target"]
     for k, e in p["e2e"].items():
+        lines.append(f"  {k:>2} people                         {e['p50_ms']:7.3f}  "
+                     f"{e['p99_ms']:7.3f}   {e['answered']}/{e['sent']}"
+                     "    p50 <= 2, p99 <= 5")  # fmt: skip
+    lines += ["", "the same, the three stages in one process (laser_legs+tracker+controller)"]
+    for k, e in p.get("e2e_together", {}).items():
         lines.append(f"  {k:>2} people                         {e['p50_ms']:7.3f}  "
                      f"{e['p99_ms']:7.3f}   {e['answered']}/{e['sent']}"
                      "    p50 <= 2, p99 <= 5")  # fmt: skip

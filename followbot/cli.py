@@ -1,6 +1,7 @@
 """The ``followbot`` command.
 
 followbot run <service> [--config FILE] [--set key=value] ...   run one service
+followbot run <a>+<b>+... [--config FILE] ...                   run several in one process
 followbot services                                              list runnable services
 followbot topics                                                list topics and types
 followbot schemas [--output DIR | --check]                      JSON Schema of messages
@@ -33,6 +34,10 @@ def _services():
 def _cmd_run(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.services.runtime.plugins import UnknownPlugin
 
+    if "+" in args.service:  # several services in one process (docs/runtime.md)
+        from followbot.services.runtime.container import main as run_together
+
+        return run_together(args.service.split("+"), args.args)
     try:
         main = _services().load(args.service)
     except UnknownPlugin as exc:
@@ -130,7 +135,11 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         add_help=True,
     )
-    p.add_argument("service", help="service name (see `followbot services`)")
+    p.add_argument(
+        "service",
+        help="service name (see `followbot services`), or several joined by + to run them in "
+        "one process (e.g. laser_legs+tracker+controller)",
+    )
     p.add_argument("args", nargs=argparse.REMAINDER, help="the service's own options")
     p.set_defaults(fn=_cmd_run)
 

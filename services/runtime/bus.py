@@ -71,25 +71,37 @@ class ZenohBus:
         self._declared: list = []
 
     def publisher(self, key: str, *, reliable: bool = False):
+        return _ZenohPublisher(self._declare_publisher(key, reliable))
+
+    def subscribe(self, key: str, callback: PayloadCallback):
+        return self._declare_subscriber(key, callback)
+
+    def _declare_publisher(self, key: str, reliable: bool, destination=None):
+        """``destination``: a ``zenoh.Locality`` (None: zenoh's default, everyone)."""
         z = self._zenoh
+        extra = {} if destination is None else {"allowed_destination": destination}
         pub = self.session.declare_publisher(
             key,
             # Sensor streams drop under congestion (only the latest matters); streams where
             # every sample matters block the writer instead of losing data.
             congestion_control=z.CongestionControl.BLOCK if reliable else z.CongestionControl.DROP,
             express=True,  # no batching: lowest latency for small, frequent messages
+            **extra,
         )
         self._declared.append(pub)
-        return _ZenohPublisher(pub)
+        return pub
 
-    def subscribe(self, key: str, callback: PayloadCallback):
+    def _declare_subscriber(self, key: str, callback: PayloadCallback, origin=None):
+        """``origin``: a ``zenoh.Locality`` (None: zenoh's default, everyone)."""
+
         def on_sample(sample) -> None:
             callback(sample.payload.to_bytes())
 
         # zenoh-python's default (indirect) callback: its network thread pushes into a Rust
         # channel and a Python thread of its own calls us, so the network thread never waits
         # for the GIL while a node computes.
-        sub = self.session.declare_subscriber(key, on_sample)
+        extra = {} if origin is None else {"allowed_origin": origin}
+        sub = self.session.declare_subscriber(key, on_sample, **extra)
         self._declared.append(sub)
         return sub
 

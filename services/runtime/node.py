@@ -514,10 +514,23 @@ def _stop_on_signals(node: Node) -> Iterator[None]:
 
 @contextmanager
 def zenoh_node(service: str, settings: NodeSettings) -> Iterator[Node]:
-    """A :class:`Node` on a real Zenoh session, closed cleanly on exit."""
+    """A :class:`Node` on a real Zenoh session, closed cleanly on exit. In a process that runs
+    several services (container.py) the node joins the process's shared session instead."""
     from .bus import ZenohBus
+    from .container import current_hub
     from .session import open_session
 
+    hub = current_hub()
+    if hub is not None:
+        node = Node(service, settings, hub.bus())
+        node.log.info("%s up (with others): robot=%s pid=%d", service, settings.robot, os.getpid())
+        hub.register(node)
+        try:
+            yield node
+        finally:
+            hub.unregister(node)
+            node.close()
+        return
     session = open_session(settings.zenoh)
     try:
         bus = ZenohBus(session)

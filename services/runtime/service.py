@@ -7,6 +7,7 @@ import logging
 import signal
 import sys
 import textwrap
+import threading
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
@@ -44,10 +45,12 @@ def service_main(
     itself), 2 for bad options or settings, 1 when the Zenoh session cannot be opened.
     """
     stop_requested: list[int] = []
-    previous = {
-        s: signal.signal(s, lambda signum, _f: stop_requested.append(signum))
-        for s in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = {}
+    if threading.current_thread() is threading.main_thread():  # else: run with others
+        previous = {
+            s: signal.signal(s, lambda signum, _f: stop_requested.append(signum))
+            for s in (signal.SIGINT, signal.SIGTERM)
+        }
     try:
         parser = argparse.ArgumentParser(
             prog=f"followbot run {service}",
