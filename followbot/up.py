@@ -158,7 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     from followbot.services.runtime.compose import (
         ComposeError,
         check_services,
+        group_settings,
         load_compose,
+        process_groups,
         service_settings,
     )
     from followbot.services.runtime.plugins import Registry
@@ -190,13 +192,21 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = Path(args.log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     children = []
-    for name in names:
-        spec = compose.services[name]
-        config = log_dir / f"{name}.settings.yaml"
-        config.write_text(yaml.safe_dump(service_settings(compose, name), sort_keys=False))
-        children.append(
-            Child(name, spec.service or name, config, spec.restart, spec.stop_all_on_exit)
-        )
+    for process, members in process_groups(compose, names):
+        spec = compose.services[members[0]]
+        config = log_dir / f"{process}.settings.yaml"
+        if len(members) == 1 and spec.process is None:
+            settings = service_settings(compose, process)
+            service = spec.service or process
+        else:  # several services in one process (docs/runtime.md)
+            try:
+                settings = group_settings(compose, members)
+            except ComposeError as exc:
+                print(f"followbot up: {exc}", file=sys.stderr)
+                return 2
+            service = "+".join(compose.services[m].service or m for m in members)
+        config.write_text(yaml.safe_dump(settings, sort_keys=False))
+        children.append(Child(process, service, config, spec.restart, spec.stop_all_on_exit))
     # Validate every service's merged settings the way the service itself will.
     checks = {}
     for c in children:
@@ -211,7 +221,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.compose}: OK ({', '.join(names)})")
         return 0
     where = f" on host {args.host}" if args.host else ""
-    print(f"followbot up: {compose.name}{where}: {', '.join(names)}; logs in {log_dir}/")
+    started = ", ".join(c.name if c.service == c.name else f"{c.name} ({c.service})"
+                        for c in children)  # fmt: skip
+    print(f"followbot up: {compose.name}{where}: {started}; logs in {log_dir}/")
     return Supervisor(children, log_dir).run()
 
 

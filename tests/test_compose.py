@@ -15,7 +15,9 @@ from conftest import REPO
 from followbot.services.runtime.compose import (
     ComposeError,
     check_services,
+    group_settings,
     load_compose,
+    process_groups,
     service_settings,
 )
 
@@ -39,6 +41,14 @@ def write(tmp_path: Path, text: str) -> Path:
         ("robot: 'a b'\nservices: {a: {}}\n", "robot"),
         ("- just\n- a list\n", "expected a mapping"),
         ("services: [\n", "not valid YAML"),
+        ("services: {a: {process: p}, b: {process: p, restart: never}}\n", "one restart"),
+        (
+            "hosts: {x: {}, y: {}}\n"
+            "services: {a: {process: p, host: x}, b: {process: p, host: y}}\n",
+            "one host",
+        ),
+        ("services: {a: {process: p}, b: {process: p, service: a}}\n", "each service once"),
+        ("services: {a: {process: b}, b: {}}\n", "name of another service"),
     ],
 )
 def test_bad_compose_files_name_the_field(tmp_path, text, message):
@@ -182,3 +192,58 @@ def test_environment_variables_fill_compose_files(tmp_path, monkeypatch):
     monkeypatch.delenv("FB_HOST")
     with pytest.raises(ComposeError, match=r"\$\{FB_HOST\} is not set"):
         load_compose(path)
+
+
+def test_services_of_one_process_share_its_settings_file(tmp_path):
+    compose = load_compose(write(tmp_path, """
+robot: r
+preset: thesis
+zenoh: {connect: [tcp/10.0.0.1:7447]}
+services:
+  laser_legs: {process: core, settings: {use_target_prediction: false}}
+  vision_verify: {}
+  tracker: {process: core}
+  controller: {process: core}
+"""))  # fmt: skip
+    names = list(compose.services)
+    assert process_groups(compose, names) == [
+        ("core", ["laser_legs", "tracker", "controller"]),
+        ("vision_verify", ["vision_verify"]),
+    ]
+    assert group_settings(compose, ["laser_legs", "tracker", "controller"]) == {
+        "robot": "r",
+        "zenoh": {"connect": ["tcp/10.0.0.1:7447"]},
+        "laser_legs": {"detector": "thesis", "use_target_prediction": False},
+        "tracker": {"estimator": "particle"},
+        "controller": {},
+    }
+    bad = load_compose(write(tmp_path, """
+services:
+  tracker: {process: core, settings: {zenoh: {mode: client}}}
+  controller: {process: core}
+"""))  # fmt: skip
+    with pytest.raises(ComposeError, match="same zenoh settings"):
+        group_settings(bad, ["tracker", "controller"])
+
+
+@pytest.mark.multiprocess
+def test_up_runs_services_that_share_a_process_as_one(tmp_path, robot):
+    """synthetic and monitor in one process: the monitor counts the synthetic scans it gets
+    in-process; SIGINT stops both."""
+    compose = write(tmp_path, f"""
+robot: {robot}
+services:
+  synthetic: {{process: both, settings: {{scan_rate_hz: 50}}}}
+  monitor: {{process: both, settings: {{report_period_s: 0.3}}}}
+""")  # fmt: skip
+    up = Up(compose, tmp_path / "logs")
+    try:
+        up.expect(r"followbot up: .*both \(synthetic\+monitor\)")
+        up.expect(r"started both \(pid \d+\)")
+        up.expect(r"^both\s+\| .*sensors/scan: \d+ received, [1-9]")
+        up.p.send_signal(signal.SIGINT)
+        assert up.p.wait(15) == 0
+        rest = up.p.stdout.read()
+        assert "monitor stopped" in rest and "synthetic stopped" in rest
+    finally:
+        up.close()

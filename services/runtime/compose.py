@@ -37,7 +37,9 @@ __all__ = [
     "ComposeError",
     "ServiceSpec",
     "check_services",
+    "group_settings",
     "load_compose",
+    "process_groups",
     "service_settings",
 ]
 
@@ -85,6 +87,10 @@ class ServiceSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     restart: Literal["on-failure", "always", "never"] = "on-failure"
     stop_all_on_exit: bool = False
     """When this service exits 0 (e.g. the simulator at the scenario's end), stop everything."""
+    process: _NAME | None = None
+    """Services of one host with the same ``process`` run in one process (``followbot run
+    a+b+c``, docs/runtime.md): messages between them skip the network. They must share their
+    Zenoh settings, ``restart`` and ``stop_all_on_exit``."""
 
 
 class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
@@ -127,6 +133,7 @@ def load_compose(path: str | Path) -> Compose:
             f"{path}: preset: 'zhuang' (seed 001: colour blobs from the camera alone, hybrid "
             "PF + KF) is not implemented; choose thesis, bellotto, livingston or ristic"
         )
+    _check_processes(path, compose)
     for name, spec in compose.services.items():
         if spec.host != "local" and compose.hosts and spec.host not in compose.hosts:
             raise ComposeError(
@@ -181,6 +188,52 @@ def service_settings(compose: Compose, name: str) -> dict[str, Any]:
     if host is not None and host.zenoh:
         _merge(out, {"zenoh": dict(host.zenoh)})
     _merge(out, _deep_copy(spec.settings))
+    return out
+
+
+def _check_processes(path: Path, compose: Compose) -> None:
+    groups: dict[str, list[str]] = {}
+    for name, spec in compose.services.items():
+        if spec.process is not None:
+            groups.setdefault(spec.process, []).append(name)
+    for process, names in groups.items():
+        specs = [compose.services[n] for n in names]
+        where = f"{path}: services.{names[-1]}.process ({process!r})"
+        if process in compose.services and process not in names:
+            raise ComposeError(f"{where}: a process may not share the name of another service")
+        for attr in ("host", "restart", "stop_all_on_exit"):
+            if len({getattr(sp, attr) for sp in specs}) > 1:
+                raise ComposeError(f"{where}: the services of one process need one {attr}")
+        run = [sp.service or n for n, sp in zip(names, specs, strict=True)]
+        if len(set(run)) != len(run):
+            raise ComposeError(f"{where}: a process runs each service once")
+
+
+def process_groups(compose: Compose, names: list[str]) -> list[tuple[str, list[str]]]:
+    """(process name, the entries it runs) in file order; a service without ``process`` is a
+    process of its own, named after it."""
+    out: dict[str, list[str]] = {}
+    for name in names:
+        out.setdefault(compose.services[name].process or name, []).append(name)
+    return list(out.items())
+
+
+def group_settings(compose: Compose, names: list[str]) -> dict[str, Any]:
+    """The settings file of a process that runs several entries (container.py's format): what
+    they share at the top, each service's own keys in its section. Zenoh settings must agree."""
+    each = {n: service_settings(compose, n) for n in names}
+    zenohs = {yaml.safe_dump(e.get("zenoh", {}), sort_keys=True) for e in each.values()}
+    if len(zenohs) > 1:
+        raise ComposeError(
+            f"{compose.path}: services {', '.join(names)} share a process, so they need the "
+            "same zenoh settings (preset, file, host and their own)"
+        )
+    first = each[names[0]]
+    shared = {k: v for k, v in first.items() if all(e.get(k) == v for e in each.values())}
+    out: dict[str, Any] = dict(shared)
+    for n in names:
+        own = {k: v for k, v in each[n].items() if k not in shared}
+        out[compose.services[n].service or n] = own
     return out
 
 
