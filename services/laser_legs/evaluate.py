@@ -31,6 +31,11 @@ log = logging.getLogger(__name__)
 VARIANTS: dict[str, tuple[str, dict]] = {
     "thesis_noclip": ("thesis", {"clip_range_m": None}),
     "arc_noclip": ("arc", {"clip_range_m": None}),
+    # the learned detector without its static background, at the thresholds chosen without it
+    "learned_nobg": (
+        "learned",
+        {"background_memory_s": None, "threshold": 0.35, "pair_threshold": 0.15},
+    ),
 }
 
 

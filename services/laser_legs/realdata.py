@@ -193,7 +193,15 @@ def score(
     name: str | None = None,
     near_m: float = 3.5,
 ) -> Score:
-    """Leg recall on ``positives`` and false person candidates per scan on ``negatives``."""
+    """Leg recall on ``positives`` and false person candidates per scan on ``negatives``.
+
+    Scans are fed in order (positives, then negatives) to the one detector, as a live node
+    would; a stateful detector (``learned`` with its static background) is reset first and
+    starts afresh by itself where a stream changes (frame, geometry, stamps). It never sees
+    the labels."""
+    reset = getattr(detector, "reset", None)
+    if callable(reset):
+        reset()
     out = Score(detector=name or detector.name)
     clock = time.perf_counter
     for item in positives:

@@ -32,6 +32,14 @@ issue 4's 0.5) on both kinds of validation negatives is chosen:
   than ``--far-negatives-m`` from every label: a room and viewpoint the fold's forest never saw
   (the held-out negatives are other lasers' views of a room).
 
+Then the static background (``background.py``; ``LearnedSettings.background_*``): each training
+bag and /left_scan is fed in order to the label-free background model, and every
+(``background_memory_s``, ``background_static_fraction``, ``background_penalty``) of the grids
+(``--background-memories`` 2 4 8 16, ``--background-fractions`` 0.7 0.8 0.9,
+``--background-penalties`` 0.15 0.3 1; plus "off") gets its own thresholds by the rule above on
+the same out-of-fold scores; the highest validation recall wins (ties: fewer false persons on
+/left_scan, then shorter memory). The forest does not depend on it.
+
 The final model is then fitted on all the training data.
 """
 
@@ -45,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .background import StaticBackground
 from .detectors.learned import (
     FEATURES,
     LearnedSettings,
@@ -80,7 +89,7 @@ FOLDS = 4
 class ScanData:
     """Features, centroids and (for labelled scans) leg labels of one scan."""
 
-    __slots__ = ("cx", "cy", "features", "legs", "scan", "score")
+    __slots__ = ("counts", "cx", "cy", "features", "legs", "oof", "scan", "score")
 
     def __init__(self, scan, legs_xy: np.ndarray | None, s: LearnedSettings) -> None:
         st, en, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
@@ -89,6 +98,10 @@ class ScanData:
         self.legs = legs_xy
         self.scan = scan
         self.score = np.zeros(self.features.shape[0])
+        self.oof = self.score
+        """Out-of-fold vote shares (``score`` is what the decision sees)."""
+        self.counts: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        """Background (hits, views) of each segment, by memory (s)."""
 
 
 def _nearest(cx: np.ndarray, cy: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -236,6 +249,67 @@ def choose_thresholds(
     return best
 
 
+def background_counts(
+    streams: list[list[ScanData]], memories: list[float], s: LearnedSettings
+) -> None:
+    """Fill ``counts`` of every scan: each stream fed in order to a fresh background model
+    per memory, as the detector would (no labels are read)."""
+    for memory in memories:
+        for stream in streams:
+            bg = StaticBackground(
+                memory, hit_m=s.background_hit_m, ego_motion=s.background_ego_motion
+            )
+            for d in stream:
+                d.counts[memory] = bg.update(d.scan, d.cx, d.cy)
+
+
+def with_background(
+    data: list[ScanData], memory: float, fraction: float, min_views: int, penalty: float
+) -> None:
+    """``score`` = out-of-fold score minus ``penalty`` on static segments (memory 0: off)."""
+    for d in data:
+        if memory and d.oof.shape[0]:
+            hits, views = d.counts[memory]
+            static = StaticBackground.static_mask(hits, views, fraction, min_views)
+            d.score = d.oof - penalty * static
+        else:
+            d.score = d.oof
+
+
+def choose_background(positives, negatives, args, s: LearnedSettings):
+    """Every (memory, static fraction, penalty) of the grids, with its own thresholds
+    (:func:`choose_thresholds`); returns the rows, best first: highest validation recall,
+    then fewer false persons on /left_scan, then the simpler setting (off, shorter memory)."""
+    far = args.far_negatives_m
+    combos = [(0.0, 0.0, 0.0)]
+    combos += [
+        (m, f, p)
+        for m in args.background_memories
+        if m
+        for f in args.background_fractions
+        for p in args.background_penalties
+    ]
+    rows = []
+    for m, f, p in combos:
+        with_background([*positives, *negatives], m, f, s.background_min_views, p)
+        t, tp, rc, fp = choose_thresholds(
+            positives, negatives, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
+        )
+        bg = background_false(positives, t, tp, s.pair_distance_m, far)
+        rows.append((m, f, p, t, tp, rc, fp, bg))
+        log.info(
+            "background %s: threshold %.2f/%.2f recall %.3f false %.2f / %.2f",
+            (m, f, p),
+            t,
+            tp,
+            rc,
+            fp,
+            bg,
+        )
+    rows.sort(key=lambda r: (-r[5], r[6], r[0], -r[1], r[2]))
+    return rows
+
+
 def _negatives_in_folds(neg: list[ScanData]) -> list[list[ScanData]]:
     q = len(neg) // FOLDS
     return [neg[i * q : (i + 1) * q if i < FOLDS - 1 else len(neg)] for i in range(FOLDS)]
@@ -258,6 +332,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--augment", type=int, default=2, help="noisy copies of each real scan")
     p.add_argument("--augment-noise-m", type=float, default=0.005)
     p.add_argument("--sim-scans", type=int, default=0, help="scans per simulator scenario")
+    p.add_argument(
+        "--background-memories",
+        type=float,
+        nargs="*",
+        default=[2.0, 4.0, 8.0, 16.0],
+        help="background_memory_s values to cross-validate (none: background off)",
+    )
+    p.add_argument("--background-fractions", type=float, nargs="*", default=[0.7, 0.8, 0.9])
+    p.add_argument("--background-penalties", type=float, nargs="*", default=[0.15, 0.3, 1.0])
     args = p.parse_args(argv)
     s = LearnedSettings()
     t0 = time.perf_counter()
@@ -291,11 +374,35 @@ def main(argv: list[str] | None = None) -> int:
         score_data(model, [*pos[k], *neg_folds[k]])
         log.info("fold %d: fitted on %d segments (%d legs)", k, len(Y), int(Y.sum()))
     all_pos = [d for fold in pos for d in fold]
+    for d in (*all_pos, *neg):
+        d.oof = d.score
     far = args.far_negatives_m
+    out = sys.stdout
+    # 2. the static background (label-free, each bag and /left_scan fed in order) and the
+    # thresholds with it, chosen together on the same out-of-fold scores
+    t1 = time.perf_counter()
+    background_counts([*pos, neg], [m for m in args.background_memories if m], s)
+    log.info("background counts in %.1f s", time.perf_counter() - t1)
+    rows = choose_background(all_pos, neg, args, s)
+    out.write(
+        "static background (cross-validation, out-of-fold; each with its own thresholds; "
+        "memory 0 = off):\n  memory_s fraction penalty | threshold pair | recall "
+        "| false/scan /left_scan | background\n"
+    )
+    for m, f, pen, tt, ttp, r_, f_, b_ in rows:
+        out.write(
+            f"  {m:5.1f} {f:4.2f} {pen:4.2f} | {tt:.2f} {ttp:.2f} | {r_:.3f} "
+            f"| {f_:.2f} | {b_:.2f}\n"
+        )
+    bm, bf, bp = rows[0][:3]
+    out.write(
+        f"chosen background: background_memory_s {bm:g}, background_static_fraction {bf:g}, "
+        f"background_penalty {bp:g}\n"
+    )
+    with_background([*all_pos, *neg], bm, bf, s.background_min_views, bp)
     t, tp, rc, fp = choose_thresholds(
         all_pos, neg, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
     )
-    out = sys.stdout
     out.write(
         "cross-validation (out-of-fold, pooled over the 4 folds; false persons per scan of "
         f"/left_scan, and of the labelled bags' background beyond {far:g} m of every label):\n"
@@ -319,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(validation recall {rc:.3f}, false persons/scan {fp:.2f})\n"
     )
 
-    # 2. the final model on all the training data
+    # 3. the final model on all the training data
     X, Y = samples([*all_pos, *neg, *(d for a in aug for d in a), *sim], args.far_negatives_m)
     model = fit(X, Y, args.trees, args.depth, args.leg_prior, args.seed)
     save_model(model, args.output)

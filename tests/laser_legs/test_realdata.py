@@ -55,6 +55,23 @@ def test_learned_figures_held_out():
     pos = [s for n in ("positive_6", "positive_7") for s in read_positive(n)]
     neg = [s for t in ("/rear_scan", "/right_scan") for s in read_negative(t)]
     sc = score(make_detector("learned"), pos, neg)
-    # measured 0.884 recall at 0.97 false persons/scan (docs/laser_legs.md)
+    # with its static background (the default): measured 0.930 recall at 1.23 false
+    # persons/scan (docs/laser_legs.md); issue 4's target (>= 0.90 at <= 0.5) is not met
+    assert sc.recall > 0.90
+    assert sc.false_candidates_per_scan < 1.4
+    # without it, at the thresholds chosen without it: measured 0.884 at 0.97
+    plain = make_detector(
+        "learned", {"background_memory_s": None, "threshold": 0.35, "pair_threshold": 0.15}
+    )
+    sc = score(plain, pos, neg)
     assert sc.recall > 0.85
     assert sc.false_candidates_per_scan < 1.2
+
+
+def test_learned_background_is_reset_between_scorings():
+    # score() resets the stateful detector: the same data gives the same figures twice
+    pos = list(read_positive("positive_2"))
+    neg = list(read_negative("/left_scan"))[:60]
+    det = make_detector("learned")
+    a, b = score(det, pos, neg), score(det, pos, neg)
+    assert (a.found_legs, a.false_candidates) == (b.found_legs, b.false_candidates)

@@ -27,7 +27,13 @@ project whose recordings we evaluate on; our own feature set and code.
      the room's layout around the segment, and in cross-validation on rooms left out of
      training they raised the false persons; ``train.py``.)
 
-3. The forest's vote share for "leg" is each segment's score. Legs are paired as in the thesis
+3. Optionally (``background_memory_s``), a segment on static background — seen occupied again
+   and again over the last seconds by the same laser, scans registered by ICP
+   (:mod:`..background`) — loses ``background_penalty`` of its vote share: furniture legs and
+   clutter stay put, walking legs do not. The detector is then stateful: it expects the scans
+   of one stream in order (a new size, frame, a stamp going back or a gap starts afresh).
+
+4. The forest's vote share for "leg" is each segment's score. Legs are paired as in the thesis
    (500 mm, closest first) among the segments scoring at least ``min(threshold,
    pair_threshold)``; a two-leg person is kept when both its legs score ``pair_threshold`` or
    more, a single leg (also one of a rejected pair) when it scores ``threshold`` or more. So a
@@ -52,6 +58,7 @@ import numpy as np
 
 from followbot.schemas import LaserScan, Leg, PersonCandidates
 
+from ..background import StaticBackground
 from ..core import Prediction, beam_geometry, candidates_message, pair_legs, person, valid_mask
 
 __all__ = [
@@ -124,18 +131,37 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """
 
     model_path: str = ""  # "" = the model shipped with the package
-    threshold: float = 0.35  # vote share for a one-leg person (train.py, cross-validation)
-    pair_threshold: float = 0.15  # vote share of both legs of a two-leg person (same)
+    # thresholds chosen together with the background settings below (train.py; without the
+    # background, cross-validation chose 0.35 / 0.15: evaluate's `learned_nobg`)
+    threshold: float = 0.25  # vote share for a one-leg person (train.py, cross-validation)
+    pair_threshold: float = 0.10  # vote share of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
     max_width_m: float = 0.6
     pair_distance_m: float = 0.500  # thesis 4.3.3
     gate_m: float = 0.400  # thesis 4.3.2 criterion 3, when a prediction is given
+    # static background (background.py; not in the seeds): a segment seen occupied in at least
+    # background_static_fraction of at least background_min_views views over the last
+    # background_memory_s seconds loses background_penalty of its vote share. None or 0: off.
+    background_memory_s: float | None = 2.0  # train.py, cross-validation
+    background_static_fraction: float = 0.9  # train.py, cross-validation
+    background_penalty: float = 0.15  # train.py, cross-validation (1: never a leg)
+    background_min_views: int = 5  # a choice: ~0.7 s of a 7.5 Hz laser
+    background_hit_m: float = 0.15  # a choice: leg radius + matching error
+    background_ego_motion: bool = True  # register scans (ICP); False: the laser is still
 
     def __post_init__(self) -> None:
-        for name in ("threshold", "pair_threshold"):
+        for name in ("threshold", "pair_threshold", "background_static_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1]")
+        if self.background_memory_s is not None and not self.background_memory_s >= 0:
+            raise ValueError("background_memory_s must be >= 0 (or None: off)")
+        if not self.background_penalty >= 0:
+            raise ValueError("background_penalty must be >= 0")
+        if self.background_min_views < 1:
+            raise ValueError("background_min_views must be >= 1")
+        if not self.background_hit_m > 0:
+            raise ValueError("background_hit_m must be > 0")
         if self.min_points < 3:
             raise ValueError("min_points must be >= 3")
         for name in ("cluster_gap_m", "max_width_m", "gate_m", "pair_distance_m"):
@@ -349,9 +375,31 @@ class RandomTreesLegDetector:
     settings_type = LearnedSettings
 
     def __init__(self, settings: LearnedSettings | None = None, model=None) -> None:
-        self.settings = settings or LearnedSettings()
+        self.settings = s = settings or LearnedSettings()
         self._model = model
-        self._path = Path(self.settings.model_path) if self.settings.model_path else None
+        self._path = Path(s.model_path) if s.model_path else None
+        self.background: StaticBackground | None = None
+        """The static-background model (stateful: scans are expected in order), or None."""
+        if s.background_memory_s:
+            self.background = StaticBackground(
+                s.background_memory_s, hit_m=s.background_hit_m, ego_motion=s.background_ego_motion
+            )
+
+    def reset(self) -> None:
+        """Forget the scans seen so far (a new stream)."""
+        if self.background is not None:
+            self.background.reset()
+
+    def static_segments(self, scan: LaserScan, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
+        """Register ``scan`` with the background model; True for the segments (centroids
+        ``cx``, ``cy``) that lie on static background. All False when the model is off."""
+        if self.background is None:
+            return np.zeros(cx.shape[0], dtype=bool)
+        s = self.settings
+        hits, views = self.background.update(scan, cx, cy)
+        return StaticBackground.static_mask(
+            hits, views, s.background_static_fraction, s.background_min_views
+        )
 
     @property
     def model(self):
@@ -370,10 +418,14 @@ class RandomTreesLegDetector:
         s = self.settings
         starts, ends, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
         if starts.shape[0] == 0:
+            if self.background is not None:  # the background still sees every scan
+                self.static_segments(scan, np.zeros(0), np.zeros(0))
             return candidates_message(scan, self.name, [])
         inc = abs(float(scan.angle_increment_rad)) or math.radians(0.5)
         feats, cx, cy = features_and_centroids(starts, ends, x, y, r, valid, inc)
         score = self.leg_scores(feats)
+        if self.background is not None:
+            score = score - s.background_penalty * self.static_segments(scan, cx, cy)
         if prediction is not None:
             px, py = float(prediction[0]), float(prediction[1])
             if math.isfinite(px) and math.isfinite(py):
@@ -397,7 +449,7 @@ class RandomTreesLegDetector:
                 for i in g
             ]
             pattern = "two_legs" if len(g) == 2 else "one_leg"
-            out.append(person(legs, pattern, min(1.0, max(conf[i] for i in g))))
+            out.append(person(legs, pattern, min(1.0, max(0.0, *(conf[i] for i in g)))))
         return candidates_message(scan, self.name, out)
 
 

@@ -1,0 +1,329 @@
+"""Static background from a scan stream: where a point was seen occupied, again and again, over
+the last seconds (no labels; beyond the seeds, issue 4).
+
+The standard trick of ROS leg trackers (leg_tracker's local occupancy grid): furniture, posts and
+clutter stay put, a walking person's legs do not. :class:`StaticBackground` keeps the recent
+scans of one stream and, for any point of the newest scan, counts in how many of them the laser
+looked at that point (a *view*) and found something there (a *hit*).
+
+Ego-motion. The leg_tracker bags hold no odometry or tf, and the robot moves in ``negative_2``
+(~0.6 m/s, ~15°/s: 60-70 % of the beams change by > 5 cm from one scan to the next), so the
+scans are registered to each other (``ego_motion=True``): each scan is matched to the previous
+one by projective point-to-line ICP (Censi's PL-ICP idea in its simplest form, all numpy)::
+
+    q_i  = R(θ) c_i + t                      current point i in the previous scan's frame
+    j(i) = the beam of the previous scan nearest q_i among the ±w beams around q_i's bearing
+    e_i  = n_j · (q_i − p_j)                 distance to the previous surface (normal n_j)
+    J_i  = [n_j,x, n_j,y, n_j · perp(q_i − t)]   perp(v) = (−v_y, v_x): ∂q/∂θ
+    (Σ JᵀJ + λI) δ = −Σ Jᵀ e,  (t, θ) += δ   Gauss-Newton, 3 parameters, inliers |q − p| < d_max
+
+starting from a constant-velocity guess. Poses are chained into an odometry frame that starts at
+the stream's first scan. Too few inliers means the match failed: the history is cleared (a
+wrong pose would mark people static). ``ego_motion=False`` takes the laser as still (the
+history is then a per-beam range history in the laser frame).
+
+Query. A point ``c`` of the newest scan is moved into the frame of each remembered scan ``i``
+(``p = T_i⁻¹ T_now c``, all scans and points at once); with ``ρ``, ``φ`` its range and bearing
+there and ``r`` the ranges of the beams ``φ`` falls on (± 1 beam)::
+
+    hit   if  min |r − ρ| ≤ hit_m                something was there
+    free  if  not hit and r_centre > ρ + hit_m   the beam passed through the point
+    views = hits + frees                         (occluded, out of view or no return: unknown)
+
+A point is *static* when ``views ≥ min_views`` and ``hits ≥ static_fraction · views``. A person
+standing still for the whole memory is static too: that is the price (measured in
+``docs/laser_legs.md``).
+
+Resets: a scan of another size, geometry or ``frame_id``, a stamp going backwards, a gap longer
+than the memory, or a failed match start a new history. NaN, ±inf and out-of-bounds beams are
+"no return" everywhere. Cost: bounded by ``max_scans`` remembered scans (a fast scanner's scans
+are thinned to ``memory_s / max_scans`` apart) and by ``icp_stride`` (every k-th beam is
+matched).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from followbot.schemas import LaserScan
+
+from .core import beam_geometry, valid_mask
+
+__all__ = ["StaticBackground", "match_scans"]
+
+TWO_PI = 2.0 * math.pi
+
+
+def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pose a ∘ b of (x, y, θ) poses: b given in a's frame."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
+
+
+def _beam_index(phi: np.ndarray, angle_min_rad: float, increment_rad: float, n: int) -> np.ndarray:
+    """Beam index nearest each bearing ``phi`` (any shape), -1 where no beam looks there."""
+    inc = abs(increment_rad)
+    u = np.mod((phi - angle_min_rad) * (1.0 if increment_rad >= 0 else -1.0), TWO_PI)
+    b = np.floor(u / inc + 0.5).astype(np.intp)
+    full = round(TWO_PI / inc)
+    b[b == full] = 0  # a full circle: the last bin wraps to beam 0
+    b[b >= n] = -1
+    return b
+
+
+#: Half-width (beams) of the window searched around a point's bearing when matching.
+MATCH_WINDOW = 3
+#: Coordinates given to beams without a usable surface normal: never the nearest.
+_FAR = 1.0e6
+
+
+class _Frame:
+    """One scan's points in its own frame, with per-beam surface normals (for matching).
+
+    ``surf`` is (4, n + 2w): x, y, normal x, normal y, padded with ``w = MATCH_WINDOW`` beams
+    on both sides; beams without a usable normal (and the pads) sit at ``_FAR``.
+    """
+
+    __slots__ = ("n_normals", "ok", "r", "surf", "x", "y")
+
+    def __init__(self, r: np.ndarray, ok: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> None:
+        self.r = np.where(ok, r, np.nan)
+        self.ok = ok
+        self.x = x = np.where(ok, r * cos, 0.0)
+        self.y = y = np.where(ok, r * sin, 0.0)
+        n = r.shape[0]
+        w = MATCH_WINDOW
+        surf = np.full((4, n + 2 * w), _FAR)
+        surf[2:] = 0.0
+        if n >= 3:
+            # normal from the neighbours on both sides (a locally smooth surface only)
+            tx = x[2:] - x[:-2]
+            ty = y[2:] - y[:-2]
+            t2 = tx * tx + ty * ty
+            good = ok[2:] & ok[:-2] & ok[1:-1] & (t2 > 1e-8) & (t2 < 0.04)
+            norm = np.sqrt(np.where(good, t2, 1.0))
+            sl = slice(w + 1, w + n - 1)
+            surf[0, sl] = np.where(good, x[1:-1], _FAR)
+            surf[1, sl] = np.where(good, y[1:-1], _FAR)
+            surf[2, sl] = -ty / norm
+            surf[3, sl] = tx / norm
+            self.n_normals = int(np.count_nonzero(good))
+        else:
+            self.n_normals = 0
+        self.surf = surf
+
+
+def match_scans(
+    prev: _Frame,
+    cur: _Frame,
+    angle_min_rad: float,
+    increment_rad: float,
+    guess: np.ndarray,
+    *,
+    stride: int = 3,
+    iterations: int = 10,
+    max_distance_m: tuple[float, ...] = (0.4, 0.2, 0.1),
+) -> tuple[np.ndarray, float]:
+    """Pose (x, y, θ) of the ``cur`` scan in the ``prev`` scan's frame, and the share of the
+    matched points that are inliers at the end (0 when too few points to match).
+
+    ``max_distance_m``: the inlier distance of the first iterations, the last one after.
+    """
+    n = prev.r.shape[0]
+    sel = np.flatnonzero(cur.ok[::stride]) * stride
+    if sel.shape[0] < 10 or prev.n_normals < 10:
+        return guess.copy(), 0.0
+    cx, cy = cur.x[sel], cur.y[sel]
+    tx, ty, th = (float(v) for v in guess)
+    offsets = np.arange(2 * MATCH_WINDOW + 1)
+    rows = np.arange(sel.shape[0])
+    surf = prev.surf
+    frac = 0.0
+    for it in range(iterations):
+        c, s = math.cos(th), math.sin(th)
+        qx = c * cx - s * cy + tx
+        qy = s * cx + c * cy + ty
+        b = _beam_index(np.arctan2(qy, qx), angle_min_rad, increment_rad, n)
+        seen = b >= 0
+        bw = b[:, None] + offsets  # padded indices: beam b - w .. b + w
+        dx = qx[:, None] - surf[0, bw]
+        dy = qy[:, None] - surf[1, bw]
+        d2 = dx * dx + dy * dy
+        j = d2.argmin(axis=1)
+        dmax = max_distance_m[min(it, len(max_distance_m) - 1)]
+        inl = (d2[rows, j] < dmax * dmax) & seen
+        m = int(np.count_nonzero(inl))
+        frac = m / sel.shape[0]
+        if m < 10:
+            return np.array([tx, ty, th]), 0.0
+        jr = rows[inl]
+        jb = bw[jr, j[inl]]
+        nx, ny = surf[2, jb], surf[3, jb]
+        e = nx * dx[jr, j[inl]] + ny * dy[jr, j[inl]]  # e_i = n · (q − p)
+        jt = ny * (qx[inl] - tx) - nx * (qy[inl] - ty)  # ∂e/∂θ = n · perp(q − t)
+        J = np.array([nx, ny, jt])
+        H = J @ J.T
+        H.flat[::4] += 1e-6
+        delta = np.linalg.solve(H, -(J @ e))
+        tx += float(delta[0])
+        ty += float(delta[1])
+        th += float(delta[2])
+        if it >= len(max_distance_m) - 1 and abs(delta[0]) + abs(delta[1]) + abs(delta[2]) < 1e-3:
+            break
+    return np.array([tx, ty, th]), frac
+
+
+class StaticBackground:
+    """Recent scans of one stream; counts hits and views of query points (module docstring).
+
+    Parameters
+    ----------
+    memory_s: how far back scans are remembered (s), > 0.
+    hit_m: a remembered beam within this of a point's range is a hit (m).
+    ego_motion: register the scans to each other (True), or take the laser as still.
+    max_scans: at most this many scans are remembered.
+    min_inliers: a match with a smaller inlier share is a failure (history cleared).
+    icp_stride: every k-th beam of the new scan is matched (cost against accuracy).
+    """
+
+    def __init__(
+        self,
+        memory_s: float,
+        *,
+        hit_m: float = 0.15,
+        ego_motion: bool = True,
+        max_scans: int = 40,
+        min_inliers: float = 0.3,
+        icp_stride: int = 4,
+    ) -> None:
+        if not memory_s > 0:
+            raise ValueError("memory_s must be > 0")
+        if not hit_m > 0:
+            raise ValueError("hit_m must be > 0")
+        if max_scans < 1:
+            raise ValueError("max_scans must be >= 1")
+        self.memory_ns = int(memory_s * 1e9)
+        self.hit_m = float(hit_m)
+        self.ego_motion = bool(ego_motion)
+        self.max_scans = int(max_scans)
+        self.min_inliers = float(min_inliers)
+        self.icp_stride = int(icp_stride)
+        self.resets = 0
+        """How many times the history was started again (for health notes and tests)."""
+        self._key: tuple | None = None
+        self._clear()
+
+    def _clear(self) -> None:
+        self._ranges: np.ndarray | None = None  # (max_scans, n), NaN where no return
+        self._poses = np.zeros((self.max_scans, 3))
+        self._stamps = np.zeros(self.max_scans, dtype=np.int64)
+        self._count = 0
+        self._head = 0  # next slot of the ring
+        self._prev: _Frame | None = None
+        self._prev_stamp: int | None = None
+        self._pose = np.zeros(3)
+        self._velocity = np.zeros(3)  # last increment per ns (constant-velocity guess)
+
+    def reset(self) -> None:
+        """Forget everything (a new stream)."""
+        self._key = None
+        self._clear()
+
+    def update(
+        self, scan: LaserScan, x: np.ndarray, y: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Register ``scan`` and return (hits, views) of the points (x, y) in its frame, counted
+        over the remembered earlier scans; then remember ``scan``. Never raises on bad beams."""
+        raw = np.asarray(scan.ranges_m(), dtype=np.float64)
+        n = raw.shape[0]
+        amin, inc = float(scan.angle_min_rad), float(scan.angle_increment_rad)
+        key = (n, amin, inc, scan.frame_id)
+        stamp = int(scan.stamp_ns)
+        if key != self._key or inc == 0.0:
+            if self._key is not None:
+                self.resets += 1
+            self._key = key
+            self._clear()
+        elif self._prev_stamp is not None and (
+            stamp < self._prev_stamp or stamp - self._prev_stamp > self.memory_ns
+        ):
+            self.resets += 1
+            self._clear()
+        ok = valid_mask(raw, scan.range_min_m, scan.range_max_m) & np.isfinite(raw)
+        _, cos, sin = beam_geometry(amin, inc, n)
+        frame = _Frame(np.where(ok, raw, 0.0), ok, cos[:n], sin[:n])
+        if self._prev is not None and self.ego_motion and inc != 0.0:
+            dt = stamp - (self._prev_stamp or stamp)
+            guess = self._velocity * dt
+            step, frac = match_scans(self._prev, frame, amin, inc, guess, stride=self.icp_stride)
+            if frac < self.min_inliers or not np.all(np.isfinite(step)):
+                self.resets += 1
+                self._clear()
+                self._key = key
+            else:
+                self._pose = _compose(self._pose, step)
+                self._velocity = step / dt if dt > 0 else np.zeros(3)
+        hits, views = self._query(np.asarray(x, np.float64), np.asarray(y, np.float64), stamp, scan)
+        self._remember(frame, stamp, n)
+        return hits, views
+
+    def _remember(self, frame: _Frame, stamp: int, n: int) -> None:
+        self._prev = frame
+        self._prev_stamp = stamp
+        if self._ranges is None:
+            self._ranges = np.full((self.max_scans, n), np.nan)
+        if self._count:  # thin a fast scanner's scans to memory / max_scans apart
+            last = self._stamps[(self._head - 1) % self.max_scans]
+            if stamp - last < self.memory_ns // self.max_scans:
+                return
+        self._ranges[self._head] = frame.r
+        self._poses[self._head] = self._pose
+        self._stamps[self._head] = stamp
+        self._head = (self._head + 1) % self.max_scans
+        self._count = min(self._count + 1, self.max_scans)
+
+    def _query(self, x: np.ndarray, y: np.ndarray, stamp: int, scan: LaserScan):
+        k = x.shape[0]
+        zero = np.zeros(k, dtype=np.intp)
+        if self._count == 0 or k == 0 or self._ranges is None:
+            return zero, zero
+        slots = np.flatnonzero(self._stamps[: self._count] >= stamp - self.memory_ns)
+        if slots.shape[0] == 0:
+            return zero, zero
+        R = self._ranges[slots]  # (m, n)
+        P = self._poses[slots]  # (m, 3)
+        n = R.shape[1]
+        finite = np.isfinite(x) & np.isfinite(y)  # a non-finite point is never background
+        if not finite.all():
+            x, y = np.where(finite, x, 0.0), np.where(finite, y, 0.0)
+        c, s = math.cos(self._pose[2]), math.sin(self._pose[2])
+        wx = c * x - s * y + self._pose[0]  # the points in the odometry frame
+        wy = s * x + c * y + self._pose[1]
+        ci, si = np.cos(P[:, 2])[:, None], np.sin(P[:, 2])[:, None]
+        dx = wx[None, :] - P[:, 0:1]
+        dy = wy[None, :] - P[:, 1:2]
+        lx = ci * dx + si * dy  # ... in each remembered scan's frame (m, k)
+        ly = -si * dx + ci * dy
+        rho = np.hypot(lx, ly)
+        b = _beam_index(
+            np.arctan2(ly, lx), float(scan.angle_min_rad), float(scan.angle_increment_rad), n
+        )
+        seen = (b >= 0) & (rho >= scan.range_min_m) & (rho <= scan.range_max_m)
+        rows = np.arange(R.shape[0])[:, None, None]
+        bw = np.clip(b[:, :, None] + np.array([-1, 0, 1]), 0, n - 1)
+        r = R[rows, bw]  # (m, k, 3), NaN where no return
+        with np.errstate(invalid="ignore"):
+            near = np.abs(r - rho[:, :, None]) <= self.hit_m
+            hit = seen & near.any(axis=2)
+            free = seen & ~hit & (r[:, :, 1] > rho + self.hit_m)
+        hits = np.count_nonzero(hit, axis=0) * finite
+        return hits, hits + np.count_nonzero(free, axis=0) * finite
+
+    @staticmethod
+    def static_mask(
+        hits: np.ndarray, views: np.ndarray, static_fraction: float, min_views: int
+    ) -> np.ndarray:
+        """True where a point counts as static background."""
+        return (views >= min_views) & (hits >= static_fraction * views)
