@@ -116,6 +116,22 @@ def test_criterion_3_compensates_ego_motion():
     assert h.predictor.skipped == 1
 
 
+def test_a_coasting_target_does_not_gate_the_legs():
+    """A target the tracker has missed may be anywhere near its prediction, or the prediction
+    may be a rollback's old snapshot: gating on it (0.4 m) deleted the target's own legs and lost
+    it (ristic_circles, the target 0.5 m from the robot). Only a tracked target gates."""
+    h = Harness()
+    h.put("tracking/target", target(100 * MS, 1.5, 0.8))
+    h.put("sensors/scan", two_people(200 * MS))
+    assert len(h.out[-1].candidates) == 1  # tracking: only the target's legs
+    h.put("tracking/target", target(200 * MS, 1.5, 0.8, status="coasting"))
+    h.put("sensors/scan", two_people(300 * MS))
+    assert len(h.out[-1].candidates) == 2  # coasting: every leg, the tracker gates itself
+    h.put("tracking/target", target(300 * MS, 1.5, 0.8))
+    h.put("sensors/scan", two_people(400 * MS))
+    assert len(h.out[-1].candidates) == 1
+
+
 def test_prediction_can_be_switched_off():
     h = Harness(use_target_prediction=False)
     h.put("tracking/target", target(100 * MS, 1.5, 0.8))
