@@ -181,3 +181,28 @@ def test_legs_are_placed_at_their_centres_not_their_surfaces(rng_m):
     assert max(errors(ClusterLegDetector())) < 0.01
     literal = errors(ClusterLegDetector(ThesisSettings(leg_centre_factor=0.0)))
     assert min(literal) > 0.04  # the surface: ~pi R / 4 = 4.7 cm in front of the centre
+
+
+def test_a_half_hidden_leg_completes_a_lone_leg_only_when_asked_and_alone():
+    """Step 8 of the thesis detector (``occluded_partner``): a person walking straight at the
+    laser shows one leg and, beside its edge, a sliver of the other leg behind it."""
+    near, far = (1.20, 0.0, 0.06), (1.45, 0.07, 0.06)  # the far leg mostly behind the near one
+    scan = make_scan([near, far], [(3.0, -3.0, 3.0, 3.0)])
+    thesis = make_detector("thesis")
+    (c,) = [c for c in thesis.detect(scan).candidates if c.range_m < 2.0]
+    assert len(c.legs) == 1  # the thesis: a one-leg person at the visible leg
+    completed = make_detector("thesis", {"occluded_partner": True})
+    (c,) = [c for c in completed.detect(scan).candidates if c.range_m < 2.0]
+    assert len(c.legs) == 2 and c.pattern == "two_legs"
+    hidden = c.legs[1]
+    assert math.hypot(hidden.x_m - far[0], hidden.y_m - far[1]) < 0.08
+    assert math.hypot(c.x_m - 1.325, c.y_m - 0.035) < 0.06  # the person between its legs
+    # another person (two legs) beside it, one leg within 0.5 m: the sliver may be theirs
+    other = [(1.2, -0.45, 0.06), (1.2, -0.7, 0.06)]
+    crowd = completed.detect(make_scan([near, far, *other], [(3.0, -3.0, 3.0, 3.0)]))
+    (lone,) = [c for c in crowd.candidates if abs(c.y_m) < 0.2 and c.range_m < 2.0]
+    assert len(lone.legs) == 1
+    assert any(len(c.legs) == 2 and c.y_m < -0.4 for c in crowd.candidates)
+    # a wall right behind the leg is no leg: the run continues, it does not end in a jump back
+    wall = make_scan([near], [(1.45, -0.5, 1.45, 0.5)])
+    assert all(len(c.legs) == 1 for c in completed.detect(wall).candidates)
