@@ -114,6 +114,12 @@ class Up:
         self.p.wait()
         self.p.stdout.close()
 
+    def interrupt(self) -> str:
+        """Ctrl-C: `up` must stop everything and exit 0; returns what it printed after."""
+        self.p.send_signal(signal.SIGINT)
+        assert self.p.wait(15) == 0
+        return self.p.stdout.read()
+
     def expect(self, pattern: str, timeout: float = 20) -> re.Match:
         deadline = time.monotonic() + timeout
         rx = re.compile(pattern)
@@ -147,9 +153,7 @@ services:
         up.expect(r"monitor exited -9; restarting in 1 s")
         up.expect(r"started monitor \(pid (\d+)\)")
         up.expect(r"^monitor\s+\| .*sensors/scan: \d+ received, [1-9]")
-        up.p.send_signal(signal.SIGINT)
-        assert up.p.wait(15) == 0
-        rest = up.p.stdout.read()
+        rest = up.interrupt()
         assert "monitor stopped" in rest and "synthetic stopped" in rest
         assert (tmp_path / "logs" / "monitor.log").read_text().count("monitor up") == 2
     finally:
@@ -241,9 +245,7 @@ services:
         up.expect(r"followbot up: .*both \(synthetic\+monitor\)")
         up.expect(r"started both \(pid \d+\)")
         up.expect(r"^both\s+\| .*sensors/scan: \d+ received, [1-9]")
-        up.p.send_signal(signal.SIGINT)
-        assert up.p.wait(15) == 0
-        rest = up.p.stdout.read()
+        rest = up.interrupt()
         assert "monitor stopped" in rest and "synthetic stopped" in rest
     finally:
         up.close()

@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from .bus import ZenohBus
-from .session import SessionError, add_zenoh_arguments, open_session, overrides_from_args
+from .session import SessionError, open_session, overrides_from_args
 from .settings import SettingsError, ZenohSettings, _merge, _parse_file, apply_overrides
 
 __all__ = ["LocalHub", "current_hub", "main", "split_settings"]
@@ -208,6 +208,7 @@ def split_settings(
 def main(services: list[str], argv: list[str] | None = None) -> int:
     """``followbot run A+B+C [options]``: run services A, B and C in this process."""
     from .plugins import Registry, UnknownPlugin
+    from .service import add_run_arguments
 
     name = "+".join(services)
     parser = argparse.ArgumentParser(
@@ -215,21 +216,12 @@ def main(services: list[str], argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--config", metavar="FILE", help="group settings (YAML or JSON)")
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="SERVICE.key=value for one service, key=value for all (repeatable)",
+    add_run_arguments(
+        parser,
+        config_help="group settings (YAML or JSON)",
+        set_help="SERVICE.key=value for one service, key=value for all (repeatable)",
+        print_help="print each service's effective settings and exit",
     )
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    parser.add_argument(
-        "--print-settings",
-        action="store_true",
-        help="print each service's effective settings and exit",
-    )
-    add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     if len(set(services)) != len(services):
         print(f"followbot run {name}: a service is named twice", file=sys.stderr)

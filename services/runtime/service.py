@@ -18,7 +18,7 @@ from .node import Node, configure_logging, zenoh_node
 from .session import SessionError, add_zenoh_arguments, overrides_from_args
 from .settings import NodeSettings, SettingsError, load_settings
 
-__all__ = ["service_main", "settings_help"]
+__all__ = ["add_run_arguments", "service_main", "settings_help"]
 
 S = TypeVar("S", bound=NodeSettings)
 
@@ -30,6 +30,23 @@ def settings_help(settings_type: type[NodeSettings]) -> str:
         "settings (defaults shown; change with --config FILE or --set key=value, "
         "e.g. --set zenoh.mode=client):\n" + textwrap.indent(text, "  ")
     )
+
+
+def add_run_arguments(
+    parser: argparse.ArgumentParser,
+    *,
+    config_help: str = "settings file (YAML or JSON)",
+    set_help: str = "override one setting (dotted key, YAML value); repeatable",
+    print_help: str = "print the effective settings as YAML and exit",
+) -> None:
+    """The options of `followbot run`: --config, --set, --duration, --print-settings, zenoh's."""
+    parser.add_argument("--config", metavar="FILE", help=config_help)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
+    parser.add_argument(
+        "--duration", type=float, metavar="S", help="stop after S seconds (default: never)"
+    )
+    parser.add_argument("--print-settings", action="store_true", help=print_help)
+    add_zenoh_arguments(parser)
 
 
 def service_main(
@@ -58,23 +75,7 @@ def service_main(
             epilog=settings_help(settings_type),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
-        parser.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON)")
-        parser.add_argument(
-            "--set",
-            action="append",
-            default=[],
-            metavar="KEY=VALUE",
-            help="override one setting (dotted key, YAML value); repeatable",
-        )
-        parser.add_argument(
-            "--duration", type=float, metavar="S", help="stop after S seconds (default: never)"
-        )
-        parser.add_argument(
-            "--print-settings",
-            action="store_true",
-            help="print the effective settings as YAML and exit",
-        )
-        add_zenoh_arguments(parser)
+        add_run_arguments(parser)
         args = parser.parse_args(argv)
         try:
             settings = load_settings(
