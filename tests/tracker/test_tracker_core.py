@@ -529,6 +529,25 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     assert target.status == "tracking"
 
 
+@pytest.mark.parametrize(("reject_min_range_m", "dropped"), [(0.0, True), (0.7, False)])
+def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_range_m, dropped):
+    """reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
+    rejections then count for nothing (off by default: every rejection counts)."""
+    trk = Tracker(TrackerSettings(reject_min_range_m=reject_min_range_m, rollback=False))
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 0.5, 0.1))
+    trk.step(cands(0, (0.5, 0.1)))
+    statuses = []
+    for k in range(1, 6):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (0.5, 0.1)))
+        statuses.append(target.status)
+        trk.add_verification(rejection(k * SCAN_NS, (0.5, 0.1), distance=0.84))
+    assert ("lost" in statuses) == dropped
+    assert trk.rejections_near == (0 if dropped else 4)
+
+
 @pytest.mark.parametrize("split", [0.4, 0.0])
 def test_a_pair_of_two_peoples_legs_is_split_between_their_tracks(split):
     """Two people 0.5 m apart, each with a track; one leg of each is hidden and the detector
