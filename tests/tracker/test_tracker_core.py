@@ -498,23 +498,31 @@ def rejection(stamp_ns, xy, distance, threshold=0.8):
     )
 
 
+def rejected_every_scan(settings: TrackerSettings, xy, distance: float, scans: int):
+    """A target learnt at ``xy`` and seen there in every scan, whose candidate vision rejects
+    (``distance``) in scans 1..``scans``: the tracker, its first answer, the statuses after."""
+    trk = Tracker(settings)
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, *xy))
+    first, _ = trk.step(cands(0, xy))
+    statuses = []
+    for k in range(1, scans + 1):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, xy))
+        statuses.append(target.status)
+        trk.add_verification(rejection(k * SCAN_NS, xy, distance=distance))
+    return trk, first, statuses
+
+
 @pytest.mark.parametrize("reject_votes", [1, 2, 3])
 def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     """Following someone vision says is not the target (e.g. after a crossing swapped the
     tracks): after reject_votes rejections the target is dropped and the robot stops. Vision
     answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
-    trk = Tracker(TrackerSettings(reject_votes=reject_votes, rollback=False))
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 2.0, 0.0))
-    target, _ = trk.step(cands(0, (2.0, 0.0)))
+    settings = TrackerSettings(reject_votes=reject_votes, rollback=False)
+    trk, target, statuses = rejected_every_scan(settings, (2.0, 0.0), 1.2, 6)
     assert target.status == "tracking"
-    statuses = []
-    for k in range(1, 7):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
-        statuses.append(target.status)
-        trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=1.2))
     # the rejections of scans 1..R are applied at steps 2..R+1
     assert statuses[:reject_votes] == ["tracking"] * reject_votes
     assert statuses[reject_votes] == "lost"
@@ -533,17 +541,8 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
 def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_range_m, dropped):
     """reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
     rejections then count for nothing (off by default: every rejection counts)."""
-    trk = Tracker(TrackerSettings(reject_min_range_m=reject_min_range_m, rollback=False))
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, 0.5, 0.1))
-    trk.step(cands(0, (0.5, 0.1)))
-    statuses = []
-    for k in range(1, 6):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS, (0.5, 0.1)))
-        statuses.append(target.status)
-        trk.add_verification(rejection(k * SCAN_NS, (0.5, 0.1), distance=0.84))
+    settings = TrackerSettings(reject_min_range_m=reject_min_range_m, rollback=False)
+    trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 5)
     assert ("lost" in statuses) == dropped
     assert trk.rejections_near == (0 if dropped else 4)
 
