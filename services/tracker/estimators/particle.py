@@ -110,16 +110,6 @@ def sorted_copy_resample(weights: np.ndarray, rng: np.random.Generator | None = 
 _RESAMPLERS = {"systematic": systematic_resample, "sorted_copy": sorted_copy_resample}
 
 
-class _Batch:
-    """The stacked clouds (T, 4, m) and weights (T, m) of one :meth:`ParticleEstimator.
-    update_all`, kept until :meth:`ParticleEstimator.settle_all` resamples them."""
-
-    __slots__ = ("p", "w")
-
-    def __init__(self, p: np.ndarray, w: np.ndarray) -> None:
-        self.p, self.w = p, w
-
-
 @functools.lru_cache(maxsize=64)
 def _gather_base(tracks: int, m: int) -> np.ndarray:
     """(tracks, 4, 1) offsets of each (track, row) in a C-ordered (tracks, 4, m) cloud stack."""
@@ -161,7 +151,6 @@ class ParticleEstimator:
         self._mean = np.array([x_m, y_m, 0.0, 0.0])
         self._cov: np.ndarray | None = None  # covariance of the current estimate, when known
         self._w: np.ndarray | None = None  # weights of an update not yet resampled (m,)
-        self._batch: _Batch | None = None  # the update_all stack self._p and self._w live in
         self._ahead = np.empty((2, m))  # the next prediction's normals, when drawn ahead
         self._ahead_ready = False
         self._dt_s = 0.0
@@ -211,7 +200,6 @@ class ParticleEstimator:
         np.take(p, self._resample(w, self.rng), axis=1, out=self._spare)
         self._p, self._spare = self._spare, p
         self._w = None
-        self._batch = None
 
     # ------------------------------------------------------------------ steps
 
@@ -297,7 +285,6 @@ class ParticleEstimator:
         w /= w.sum()
         self._mean = p @ w  # eq. 3-38
         self._w = w
-        self._batch = None
 
     def expired(self) -> bool:
         return False
@@ -392,11 +379,9 @@ class ParticleEstimator:
         w = np.exp(dd, out=dd)
         w /= w.sum(axis=1, keepdims=True)
         means = np.matmul(p, w[:, :, None])[:, :, 0]  # eq. 3-38 per track
-        batch = _Batch(p, w)
         for i, e in enumerate(estimators):
             e._p = p[i]
             e._w = w[i]
-            e._batch = batch
             e._mean = means[i]
             e._cov = None
 
@@ -406,9 +391,7 @@ class ParticleEstimator:
         :meth:`draw_ahead` for each."""
         cls.settle_all(estimators)
         for e in estimators:
-            if not e._ahead_ready:
-                e.rng.standard_normal(out=e._ahead)
-                e._ahead_ready = True
+            e.draw_ahead()
 
     @classmethod
     def settle_all(cls, estimators: Sequence[ParticleEstimator]) -> None:
@@ -421,16 +404,8 @@ class ParticleEstimator:
             return
         e0 = pending[0]
         m = e0._m
-        batch = e0._batch
-        if (
-            batch is not None
-            and len(batch.w) == len(pending)
-            and all(e._batch is batch for e in pending)
-        ):
-            p, w = batch.p, batch.w  # the update_all stack, untouched since
-        else:
-            p = np.stack([e._p for e in pending])
-            w = np.stack([e._w for e in pending])
+        p = np.stack([e._p for e in pending])
+        w = np.stack([e._w for e in pending])
         means = np.stack([e._mean for e in pending])
         d = p - means[:, :, None]
         covs = np.matmul(d * w[:, None, :], d.transpose(0, 2, 1))  # posterior, per track
@@ -456,4 +431,3 @@ class ParticleEstimator:
                 e._cov = covs[i]
             e._p = out[i]
             e._w = None
-            e._batch = None
