@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import msgspec
@@ -455,14 +456,20 @@ def paired_candidates(
     pair_distance_m: float,
     two_leg_confidence: float,
     one_leg_confidence: float,
+    partner: Callable[[list[Leg], int], Leg | None] | None = None,
 ) -> PersonCandidates:
-    """Pair ``legs`` (thesis 4.3.3) and wrap the persons as the wire message."""
+    """Pair ``legs`` (thesis 4.3.3) and wrap the persons as the wire message. ``partner``:
+    given the legs and a lone leg's index, another leg to pair it with, or None (a detector
+    that finds legs the pairing cannot, e.g. a half-hidden one)."""
     wire = leg_list(legs)
     groups = pair_legs([w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m)
-    out = [
-        person([wire[i] for i in g], "two_legs", two_leg_confidence)
-        if len(g) == 2
-        else person([wire[g[0]]], "one_leg", one_leg_confidence)
-        for g in groups
-    ]
+    out = []
+    for g in groups:
+        other = None if len(g) == 2 or partner is None else partner(wire, g[0])
+        if len(g) == 2:
+            out.append(person([wire[i] for i in g], "two_legs", two_leg_confidence))
+        elif other is not None:
+            out.append(person([wire[g[0]], other], "two_legs", two_leg_confidence))
+        else:
+            out.append(person([wire[g[0]]], "one_leg", one_leg_confidence))
     return candidates_message(scan, detector, out)

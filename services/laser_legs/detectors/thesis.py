@@ -50,13 +50,9 @@ from ..core import (
     LegSet,
     Prediction,
     beam_geometry,
-    candidates_message,
     empty_candidates,
     gate,
-    leg_list,
-    pair_legs,
     paired_candidates,
-    person,
 )
 
 __all__ = ["ClusterLegDetector", "ThesisSettings"]
@@ -224,7 +220,7 @@ class ClusterLegDetector:
         sums = np.add.reduceat(cssn * rpp_raw[1:], cut, axis=1)
         hidden: list[Leg | None] = []
         if partners:
-            hidden = self._hidden_partners(k, keep, st, en, cnt, ra, rb, w, sums, inc)
+            hidden = self._hidden_partners(k, keep, st, en, cnt, ra, rb, w, sums)
         xy = sums[:, k]
         cnt = cnt[k]
         xy /= cnt
@@ -244,7 +240,7 @@ class ClusterLegDetector:
                 hidden = [h for h, ok in zip(hidden, near.tolist(), strict=True) if ok]
         return legs, hidden
 
-    def _hidden_partners(self, k, keep, st, en, cnt, ra, rb, w, sums, inc) -> list[Leg | None]:
+    def _hidden_partners(self, k, keep, st, en, cnt, ra, rb, w, sums) -> list[Leg | None]:
         """Step 8: for each kept run ``k[i]``, the sliver of a leg it half hides, or None.
 
         Runs are contiguous in beam order, so a leg's neighbours are runs ``j = k[i] -+ 1``.
@@ -260,23 +256,17 @@ class ClusterLegDetector:
         cnt_l, w_l = cnt.tolist(), w.tolist()
         for i in k.tolist():
             best, best_d = None, math.inf
-            for j, near_edge, far_side in (
-                (
-                    i + 1,
-                    rb_l[i],
-                    (
-                        ra_l[i + 2] if i + 2 < n_runs else -1.0,
-                        rb_l[i + 1] if i + 1 < n_runs else 0.0,
-                    ),
-                ),
-                (i - 1, ra_l[i], (rb_l[i - 2] if i >= 2 else -1.0, ra_l[i - 1] if i >= 1 else 0.0)),
-            ):
+            for j, far in ((i + 1, i + 2), (i - 1, i - 2)):  # the run right, or left, of it
                 if not 0 <= j < n_runs or keep_l[j] or cnt_l[j] < s.min_partner_beams:
                     continue
-                start = ra_l[j] if j > i else rb_l[j]  # the sliver's range at the leg's edge
+                right = j > i
+                near_edge = rb_l[i] if right else ra_l[i]  # the leg's range at its edge
+                # the sliver's range at the leg's edge and at its far end
+                start, end = (ra_l[j], rb_l[j]) if right else (rb_l[j], ra_l[j])
                 if not (near_edge < start <= near_edge + s.pair_distance_m):
                     continue
-                beyond, end = far_side  # the next run's range at the sliver's far end
+                # the next run's range beyond the sliver (-1: none, as no return)
+                beyond = (ra_l[far] if right else rb_l[far]) if 0 <= far < n_runs else -1.0
                 if 0 < beyond <= end:  # something nearer (or as near) continues past it
                     continue
                 if not w_l[j] < s.max_width_m:
@@ -287,14 +277,14 @@ class ClusterLegDetector:
                 if d < s.pair_distance_m and d < best_d:
                     r = math.hypot(cx, cy)
                     push = 0.5 * w_l[i] / max(r, 1e-9)  # half a leg behind the sliver
-                    # its width: the visible leg's (only a sliver of it shows)
-                    best, best_d = (cx * (1 + push), cy * (1 + push), j, w_l[i]), d
+                    best, best_d = (cx * (1 + push), cy * (1 + push), j), d
             if best is None:
                 out.append(None)
             else:
-                bx, by, j, bw = best
+                bx, by, j = best
+                # its width: the visible leg's (only a sliver of it shows)
                 out.append(
-                    Leg(x_m=bx, y_m=by, first_beam=int(st[j]), last_beam=int(en[j]), width_m=bw)
+                    Leg(x_m=bx, y_m=by, first_beam=int(st[j]), last_beam=int(en[j]), width_m=w_l[i])
                 )
         return out
 
@@ -312,23 +302,16 @@ class ClusterLegDetector:
         legs, hidden = self._legs(scan, prediction, s.occluded_partner)
         if len(legs) == 0:
             return empty_candidates(scan, self.name)
-        if not any(h is not None for h in hidden):
-            return paired_candidates(
-                scan,
-                self.name,
-                legs,
-                s.pair_distance_m,
-                s.two_leg_confidence,
-                s.one_leg_confidence,
-            )
-        wire = leg_list(legs)
-        groups = pair_legs([g.x_m for g in wire], [g.y_m for g in wire], s.pair_distance_m)
-        out = []
-        for g in groups:
-            if len(g) == 2:
-                out.append(person([wire[i] for i in g], "two_legs", s.two_leg_confidence))
-            elif hidden[g[0]] is not None and self._alone(wire, g[0]):  # step 8
-                out.append(person([wire[g[0]], hidden[g[0]]], "two_legs", s.two_leg_confidence))
-            else:
-                out.append(person([wire[g[0]]], "one_leg", s.one_leg_confidence))
-        return candidates_message(scan, self.name, out)
+
+        def partner(wire: list[Leg], i: int) -> Leg | None:  # step 8
+            return hidden[i] if hidden[i] is not None and self._alone(wire, i) else None
+
+        return paired_candidates(
+            scan,
+            self.name,
+            legs,
+            s.pair_distance_m,
+            s.two_leg_confidence,
+            s.one_leg_confidence,
+            partner if any(h is not None for h in hidden) else None,
+        )
