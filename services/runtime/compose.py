@@ -222,13 +222,12 @@ def group_settings(compose: Compose, names: list[str]) -> dict[str, Any]:
     """The settings file of a process that runs several entries (container.py's format): what
     they share at the top, each service's own keys in its section. Zenoh settings must agree."""
     each = {n: service_settings(compose, n) for n in names}
-    zenohs = {yaml.safe_dump(e.get("zenoh", {}), sort_keys=True) for e in each.values()}
-    if len(zenohs) > 1:
+    first = each[names[0]]
+    if any(e.get("zenoh", {}) != first.get("zenoh", {}) for e in each.values()):
         raise ComposeError(
             f"{compose.path}: services {', '.join(names)} share a process, so they need the "
             "same zenoh settings (preset, file, host and their own)"
         )
-    first = each[names[0]]
     shared = {k: v for k, v in first.items() if all(e.get(k) == v for e in each.values())}
     out: dict[str, Any] = dict(shared)
     for n in names:

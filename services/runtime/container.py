@@ -32,12 +32,12 @@ The Zenoh settings belong to the process, so a service section may not have its 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import logging
 import signal
 import sys
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -199,7 +199,7 @@ def split_settings(
                 f"{s}.zenoh: services run together share one Zenoh session; "
                 "set zenoh at the top level (or with --connect/--listen/--mode)"
             )
-        m: dict[str, Any] = json.loads(json.dumps(shared))  # a deep copy
+        m: dict[str, Any] = copy.deepcopy(shared)
         _merge(m, own[s])
         merged[s] = m
     return shared, merged
@@ -305,7 +305,6 @@ def _serve(name, services, mains, argvs, zenoh_settings: ZenohSettings) -> int:
         while any(t.is_alive() for t in threads):
             for t in threads:
                 t.join(0.1)
-        time.sleep(0)  # let the last logs out
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
