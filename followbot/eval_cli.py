@@ -15,6 +15,7 @@ not installed is reported and skipped.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -29,7 +30,7 @@ def builtin_scenarios() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from followbot.runner import RunError, run_scenario
+    from followbot.runner import RunError, apply_stage_overrides, run_scenario, stage_settings
     from followbot.services.runtime.compose import PRESETS
     from followbot.services.sim.node import load_scenario_setting
     from followbot.services.sim.scenario import ScenarioError
@@ -49,6 +50,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--output", required=True, metavar="DIR", help="report folder")
     p.add_argument("--seed", type=int, help="random seed (default: each scenario's own)")
     p.add_argument("--no-record", action="store_true", help="do not write MCAP recordings")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="STAGE.KEY=VALUE",
+        help="a stage setting on top of the preset, e.g. --set laser_legs.detector_settings.pairing=matching "
+        "(repeatable; stages: sim, laser_legs, vision_verify, tracker, controller)",
+    )  # fmt: skip
     args = p.parse_args(argv)
     scenarios = args.scenario or builtin_scenarios()
     presets = args.preset or list(DEFAULT_PRESETS)
@@ -58,8 +64,14 @@ def main(argv: list[str] | None = None) -> int:
         except (ScenarioError, ValueError) as exc:
             print(f"followbot eval: {exc}", file=sys.stderr)
             return 2
+    try:  # a malformed --set stops everything before any run
+        apply_stage_overrides({**stage_settings(presets[0], True), "sim": {}}, args.set)
+    except RunError as exc:
+        print(f"followbot eval: {exc}", file=sys.stderr)
+        return 2
+    run = functools.partial(run_scenario, overrides=args.set) if args.set else run_scenario
     return evaluate(scenarios, presets, Path(args.output), args.seed, not args.no_record,
-                    run_scenario, RunError)  # fmt: skip
+                    run, RunError)  # fmt: skip
 
 
 def evaluate(scenarios, presets, out: Path, seed, record, run_scenario, run_error) -> int:

@@ -125,6 +125,23 @@ def stage_settings(
     return out
 
 
+def apply_stage_overrides(settings: dict[str, dict[str, Any]], overrides: list[str]) -> None:
+    """``STAGE.key=value`` items (value in YAML) into each stage's settings; a bad item raises
+    :class:`RunError` naming it. Each stage validates its keys when it starts."""
+    from followbot.services.runtime.settings import SettingsError, apply_overrides
+
+    for item in overrides:
+        stage, dot, _ = item.partition("=")[0].strip().partition(".")
+        if not dot or stage not in settings or "=" not in item:
+            raise RunError(
+                f"--set {item!r}: expected STAGE.key=value with STAGE one of {', '.join(settings)}"
+            )
+        try:
+            apply_overrides(settings[stage], [item.split(".", 1)[1]])
+        except SettingsError as exc:
+            raise RunError(f"--set {item!r}: {exc}") from exc
+
+
 def run_scenario(
     scenario: str,
     preset: str,
@@ -136,8 +153,10 @@ def run_scenario(
     progress: bool = True,
     timeout_s: float = 600.0,
     vision: bool = True,
+    overrides: list[str] | None = None,
 ):
-    """Run ``scenario`` with ``preset``; returns a :class:`followbot.evaluation.ScenarioRun`."""
+    """Run ``scenario`` with ``preset``; returns a :class:`followbot.evaluation.ScenarioRun`.
+    ``overrides``: ``STAGE.key=value`` settings on top of the preset (``followbot eval --set``)."""
     from followbot.evaluation import ScanRecord, ScenarioRun
     from followbot.mcapio import McapTopicWriter
     from followbot.services.runtime.bus import ZenohBus
@@ -164,6 +183,7 @@ def run_scenario(
         "start_timeout_s": 60.0,
         **({"seed": seed} if seed is not None else {}),
     }
+    apply_stage_overrides(settings, overrides or [])
     common = {"robot": robot, "zenoh": {"connect": [endpoint]}, "log_level": "warning"}
     stamps: dict[int, _Stamp] = {}
     truth_ns = [0]  # newest truth stamp; the handlers (Zenoh threads) write, the loop reads

@@ -644,3 +644,22 @@ def test_acquired_s_is_the_first_tracked_time_or_none():
 
     assert compute_metrics(run(3))["acquired_s"] == pytest.approx(0.3)
     assert compute_metrics(run(None))["acquired_s"] is None
+
+
+def test_stage_overrides_apply_and_bad_ones_are_refused():
+    from followbot.eval_cli import main as eval_main
+    from followbot.runner import RunError, apply_stage_overrides, stage_settings
+
+    settings = {**stage_settings("thesis", True), "sim": {}}
+    apply_stage_overrides(
+        settings,
+        ["laser_legs.detector_settings.pairing=matching", "tracker.max_misses=4", "sim.seed=3"],
+    )
+    assert settings["laser_legs"]["detector_settings"] == {"pairing": "matching"}
+    assert settings["laser_legs"]["detector"] == "thesis"  # the preset's keys stay
+    assert settings["tracker"]["max_misses"] == 4 and settings["sim"]["seed"] == 3
+    for bad in ("max_misses=4", "nobody.key=1", "tracker.max_misses"):
+        with pytest.raises(RunError, match="STAGE.key=value"):
+            apply_stage_overrides(settings, [bad])
+    # the command refuses a bad --set before running anything (exit 2, no report)
+    assert eval_main(["--output", "/nonexistent/never", "--set", "oops=1"]) == 2
