@@ -36,6 +36,7 @@ from followbot.schemas import Candidate, LaserScan, Leg, PersonCandidates
 
 __all__ = [
     "NO_RETURN",
+    "PAIRINGS",
     "Beams",
     "Clusters",
     "LegDetector",
@@ -359,12 +360,29 @@ def gate(legs: LegSet, prediction: Prediction, radius_m: float) -> np.ndarray:
     return np.hypot(legs.x - px, legs.y - py) < radius_m
 
 
-def pair_legs(x: list[float], y: list[float], max_distance_m: float) -> list[tuple[int, ...]]:
-    """Group legs into persons: closest pairs first, each leg used once (thesis 4.3.3).
+#: Pairing rules (``pairing`` settings): the thesis's greedy one, or the best matching.
+PAIRINGS = ("closest_first", "matching")
 
-    Returns tuples of leg indices, ``(i, j)`` for two legs closer than ``max_distance_m`` and
-    ``(i,)`` for a lone leg, ordered by their first leg. Plain Python: a scan has a handful of
-    legs, and numpy's per-call cost would dominate.
+#: Beyond this many legs within reach of each other, ``matching`` falls back to closest first
+#: (the exact search grows exponentially; a scan's group of touching legs is 2-6).
+MAX_MATCHED_GROUP = 12
+
+
+def pair_legs(
+    x: list[float], y: list[float], max_distance_m: float, pairing: str = "closest_first"
+) -> list[tuple[int, ...]]:
+    """Group legs into persons, each leg used once; ``(i, j)`` for two legs closer than
+    ``max_distance_m`` and ``(i,)`` for a lone leg, ordered by their first leg.
+
+    ``closest_first`` (thesis 4.3.3): the closest pair first, then the closest of the rest.
+    ``matching`` (beyond the thesis): the pairing that maximises the sum over pairs of
+    ``max_distance_m - d``, i.e. every pair counts, the tighter the better. Two people walking
+    0.35 m apart show four legs where an inner leg of each is closer to the other person's
+    than to its own partner: closest first pairs the two inner legs into a phantom person
+    between them and leaves the outer legs alone; the matching keeps both people. Exact per
+    group of legs within reach of each other (up to :data:`MAX_MATCHED_GROUP` legs).
+
+    Plain Python: a scan has a handful of legs, and numpy's per-call cost would dominate.
     """
     k = len(x)
     pairs = []
@@ -374,16 +392,87 @@ def pair_legs(x: list[float], y: list[float], max_distance_m: float) -> list[tup
             d = math.hypot(x[j] - xi, y[j] - yi)
             if d < max_distance_m:
                 pairs.append((d, i, j))
-    pairs.sort()
+    if pairing == "matching" and pairs:
+        chosen = _best_matching(k, pairs, max_distance_m)
+    elif pairing in PAIRINGS:
+        chosen = _closest_first(k, sorted(pairs))
+    else:
+        raise ValueError(f"pairing must be one of {PAIRINGS}, not {pairing!r}")
     used = [False] * k
-    groups: list[tuple[int, ...]] = []
-    for _, i, j in pairs:
-        if not used[i] and not used[j]:
-            used[i] = used[j] = True
-            groups.append((i, j))
+    for i, j in chosen:
+        used[i] = used[j] = True
+    groups: list[tuple[int, ...]] = list(chosen)
     groups.extend((i,) for i in range(k) if not used[i])
     groups.sort()
     return groups
+
+
+def _closest_first(k: int, pairs: list[tuple[float, int, int]]) -> list[tuple[int, int]]:
+    used = [False] * k
+    out = []
+    for _, i, j in pairs:
+        if not used[i] and not used[j]:
+            used[i] = used[j] = True
+            out.append((i, j))
+    return out
+
+
+def _best_matching(
+    k: int, pairs: list[tuple[float, int, int]], max_distance_m: float
+) -> list[tuple[int, int]]:
+    """Maximum-weight matching (weight ``max_distance_m - d``), exact per connected group."""
+    near: list[list[tuple[int, float]]] = [[] for _ in range(k)]
+    for d, i, j in pairs:
+        w = max_distance_m - d
+        near[i].append((j, w))
+        near[j].append((i, w))
+    seen = [False] * k
+    out: list[tuple[int, int]] = []
+    for root in range(k):
+        if seen[root] or not near[root]:
+            continue
+        group, stack = [], [root]  # the legs within reach of root, transitively
+        seen[root] = True
+        while stack:
+            i = stack.pop()
+            group.append(i)
+            for j, _ in near[i]:
+                if not seen[j]:
+                    seen[j] = True
+                    stack.append(j)
+        if len(group) > MAX_MATCHED_GROUP:
+            inside = set(group)
+            out += _closest_first(k, sorted(p for p in pairs if p[1] in inside))
+            continue
+        out += _match_group(sorted(group), near)
+    return out
+
+
+def _match_group(
+    group: list[int], near: list[list[tuple[int, float]]]
+) -> tuple[tuple[int, int], ...]:
+    """The best matching of one group of legs: each leg, lowest first, alone or paired."""
+    if len(group) == 2:  # the common case: one pair
+        return ((group[0], group[1]),)
+    bit = {leg: b for b, leg in enumerate(group)}
+    memo: dict[int, tuple[float, tuple[tuple[int, int], ...]]] = {0: (0.0, ())}
+
+    def best(free: int) -> tuple[float, tuple[tuple[int, int], ...]]:
+        if free in memo:
+            return memo[free]
+        b = (free & -free).bit_length() - 1  # the lowest free leg: alone, or paired
+        rest = free & ~(1 << b)
+        score, chosen = best(rest)
+        i = group[b]
+        for j, w in near[i]:
+            if free >> bit[j] & 1:
+                sub, sub_chosen = best(rest & ~(1 << bit[j]))
+                if sub + w > score:
+                    score, chosen = sub + w, ((min(i, j), max(i, j)), *sub_chosen)
+        memo[free] = score, chosen
+        return score, chosen
+
+    return best((1 << len(group)) - 1)[1]
 
 
 def empty_candidates(scan: LaserScan, detector: str) -> PersonCandidates:
@@ -457,12 +546,14 @@ def paired_candidates(
     two_leg_confidence: float,
     one_leg_confidence: float,
     partner: Callable[[list[Leg], int], Leg | None] | None = None,
+    pairing: str = "closest_first",
 ) -> PersonCandidates:
     """Pair ``legs`` (thesis 4.3.3) and wrap the persons as the wire message. ``partner``:
     given the legs and a lone leg's index, another leg to pair it with, or None (a detector
-    that finds legs the pairing cannot, e.g. a half-hidden one)."""
+    that finds legs the pairing cannot, e.g. a half-hidden one); ``pairing``: see
+    :func:`pair_legs`."""
     wire = leg_list(legs)
-    groups = pair_legs([w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m)
+    groups = pair_legs([w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m, pairing)
     out = []
     for g in groups:
         other = None if len(g) == 2 or partner is None else partner(wire, g[0])

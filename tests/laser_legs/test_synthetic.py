@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from followbot.schemas import PersonCandidates, decode, encode
 from followbot.services.laser_legs import DETECTORS, make_detector
@@ -132,6 +134,47 @@ def test_pair_legs_closest_first():
     y = [0.0, 0.0, 0.0, 0.0]
     assert pair_legs(x, y, 0.5) == [(0,), (1, 2), (3,)]
     assert pair_legs([], [], 0.5) == []
+
+
+def test_pair_legs_matching_keeps_two_people_side_by_side_apart():
+    # two people 0.36 m apart, legs 0.2 m apart: the inner legs are the closest pair
+    y = [-0.10, 0.10, 0.26, 0.46]
+    x = [2.0] * 4
+    assert pair_legs(x, y, 0.5) == [(0,), (1, 2), (3,)]  # thesis: a phantom in between
+    assert pair_legs(x, y, 0.5, "matching") == [(0, 1), (2, 3)]
+    # where only one pair is possible both rules agree; far legs stay alone
+    assert pair_legs([0.0, 0.45, 0.55, 3.0], [0.0] * 4, 0.5, "matching") == [(0,), (1, 2), (3,)]
+    assert pair_legs([], [], 0.5, "matching") == []
+    with pytest.raises(ValueError, match="pairing"):
+        pair_legs(x, y, 0.5, "nearest")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.floats(0, 2), st.floats(0, 2)), max_size=16))
+def test_pair_legs_matching_is_a_best_pairing(points):
+    from itertools import combinations
+
+    x = [p[0] for p in points]
+    y = [p[1] for p in points]
+    groups = pair_legs(x, y, 0.5, "matching")
+    assert sorted(i for g in groups for i in g) == list(range(len(points)))  # each leg once
+    pairs = [g for g in groups if len(g) == 2]
+    assert all(math.dist(points[i], points[j]) < 0.5 for i, j in pairs)
+
+    def value(ps):
+        return sum(0.5 - math.dist(points[i], points[j]) for i, j in ps)
+
+    greedy = [g for g in pair_legs(x, y, 0.5) if len(g) == 2]
+    assert value(pairs) >= value(greedy) - 1e-9  # never worse than closest first
+    if len(points) <= 7:  # brute force: no pairing is better
+        edges = [
+            (i, j) for i, j in combinations(range(len(points)), 2)
+            if math.dist(points[i], points[j]) < 0.5
+        ]  # fmt: skip
+        for n in range(1, len(points) // 2 + 1):
+            for ps in combinations(edges, n):
+                if len({i for p in ps for i in p}) == 2 * n:
+                    assert value(ps) <= value(pairs) + 1e-9
 
 
 def test_make_detector_by_name_and_settings():

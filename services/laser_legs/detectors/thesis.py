@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Literal
 
 import msgspec
 import numpy as np
@@ -94,6 +95,9 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     max_width_m: float = 0.300  # thesis 4.3.2 eq. 4-5: W < 300 mm
     gate_m: float = 0.400  # thesis 4.3.2 eq. 4-7: 400 mm (criterion 3)
     pair_distance_m: float = 0.500  # thesis 4.3.3: legs closer than 500 mm are one person
+    pairing: Literal["closest_first", "matching"] = "closest_first"
+    """thesis 4.3.3 pairs the closest legs first; ``matching`` keeps two people walking side by
+    side apart (core.pair_legs)."""
     leg_centre_factor: float = math.pi / 8
     """Beyond the thesis: the cluster's middle (4.3.3) lies on the leg's visible surface, not
     at its centre. Beams evenly spread in angle hit a round leg of radius R evenly across its
@@ -314,4 +318,5 @@ class ClusterLegDetector:
             s.two_leg_confidence,
             s.one_leg_confidence,
             partner if any(h is not None for h in hidden) else None,
+            s.pairing,
         )
