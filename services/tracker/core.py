@@ -248,6 +248,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     8-16 s (ristic_circles). At 0.7 m (76 closed-loop runs, docs/tracker.md): ristic_circles
     tracked 1.00 in all 8 seeds (0.97) and RMSE 0.083 m (0.095), but in the cluttered office
     the robot then kept following clutter and once a bystander near it (1.2 s in 8 runs)."""
+    near_guard_m: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """With reject_min_range_m: a near rejection counts for nothing only while the target is
+    surely the one vision last accepted -- its track took a candidate on every scan since, and
+    no other track came within this distance of it. A target that was hidden, or passed
+    someone (or something) on the way, is judged as usual. 0: near rejections never count."""
     split_pair_m: Annotated[float, msgspec.Meta(ge=0)] = 0.4
     """A two-leg candidate whose legs are farther apart than this may be one leg each of two
     people (the thesis pairs legs up to 500 mm apart; when one of the target's legs is hidden
@@ -255,6 +260,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     track the pair is split, one leg to each; otherwise a track may take either leg alone
     when that leg is nearer its prediction than the pair's centre. 0: always the centre. In
     the simulator a person's own legs were at most 0.36 m apart, such cross pairs 0.40-0.49."""
+    one_leg_noise_scale: Annotated[float, msgspec.Meta(ge=1, le=100)] = 1.0
+    """Beyond the thesis: a track updated with a lone leg (a one-leg candidate, or one leg of
+    a split pair) scales its measurement noise by this. The thesis treats every candidate
+    alike (1); a lone leg lies ~0.13 m from the person's centre on average in the simulator
+    (two legs' middle: ~0.04 m), wherever the hidden leg happens to be in its stride."""
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
@@ -376,6 +386,8 @@ class Tracker:
         self.rollbacks = 0  # target tracks split by a rejecting verification
         self.rejections_near = 0  # rejections not counted: the candidate too near the camera
         self._confirmed_index = -1  # last scan whose verification accepted the target's candidate
+        # scans at which the target missed or had another track within near_guard_m
+        self._breaks: deque[int] = deque()
         self._now: tuple[int, Pose | None] = (0, None)
         self.steps_without_odometry = 0
         self._rest: _Rest | None = None  # what step_rest still has to do
@@ -404,6 +416,7 @@ class Tracker:
         self._had_target = False
         self._lost_at = None
         self._switch = (-1, 0)
+        self._breaks.clear()
 
     # ------------------------------------------------------------------ the step
 
@@ -516,12 +529,28 @@ class Tracker:
         first = starts if starts is not None else np.arange(len(unit_cand))
         updated = [self.tracks[tid] for tid in ids if tid in matched]
         zs = [measured.get(t.id, points[first[matched[t.id]]]) for t in updated]
+        scales = None
+        if s.one_leg_noise_scale != 1.0:  # a lone leg, one leg of a pair, or a split pair's
+            split = {c for c in unit_cand if unit_cand.count(c) > 1}
+            lone = [
+                t.id in measured
+                or unit_cand[matched[t.id]] in split
+                or len(cands[unit_cand[matched[t.id]]].legs) == 1
+                for t in updated
+            ]
+            scales = np.where(lone, s.one_leg_noise_scale, 1.0)
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
-            update_all([t.estimator for t in updated], np.array(zs))
-        else:
+            if scales is None:
+                update_all([t.estimator for t in updated], np.array(zs))
+            else:
+                update_all([t.estimator for t in updated], np.array(zs), scales)
+        elif scales is None:
             for t, zi in zip(updated, zs, strict=True):
                 t.estimator.update(zi)
+        else:
+            for t, zi, k in zip(updated, zs, scales, strict=True):
+                t.estimator.update(zi, float(k))
         learn: list[tuple[Track, int]] = []  # (track, seen before): velocities, in step_rest
         for tid in ids:
             t = self.tracks[tid]
@@ -545,6 +574,8 @@ class Tracker:
             if c not in by_cand or tid == self.target_id:
                 by_cand[c] = tid
         matched = {tid: c for c, tid in by_cand.items()}
+        if s.near_guard_m > 0 and s.reject_min_range_m > 0 and self.target_id >= 0:
+            self._note_break()
         for tid in list(self.tracks):
             t = self.tracks[tid]
             if t.misses > s.max_misses or t.estimator.expired():
@@ -697,6 +728,29 @@ class Tracker:
             self._learn_velocity(track, stamp_ns, self._now[1])  # where it was first seen
         return tid
 
+    def _note_break(self) -> None:
+        """Remember this scan when the target missed or another track is near it."""
+        target = self.tracks[self.target_id]
+        broken = target.misses > 0
+        if not broken:
+            xy = target.position
+            guard = self.settings.near_guard_m
+            broken = any(
+                float(np.hypot(*(t.position - xy))) < guard
+                for t in self.tracks.values()
+                if t is not target
+            )
+        if broken:
+            self._breaks.append(self._index)
+            while len(self._breaks) > self.settings.history_scans:
+                self._breaks.popleft()
+
+    def _surely_the_target(self, index: int) -> bool:
+        """No break between the last acceptance of the target and scan ``index``."""
+        if self._index - self._confirmed_index > self.settings.history_scans:
+            return False  # the breaks of that time are forgotten
+        return not any(self._confirmed_index < b <= index for b in self._breaks)
+
     def _set_target(self, tid: int) -> None:
         self._rejects = 0
         if self.target_id >= 0 and tid != self.target_id:
@@ -833,7 +887,9 @@ class Tracker:
             return
         if seen[0].distance <= v.threshold:
             return  # close enough, only another was closer: the switch votes decide
-        if math.hypot(seen[0].x_m, seen[0].y_m) < self.settings.reject_min_range_m:
+        if math.hypot(seen[0].x_m, seen[0].y_m) < self.settings.reject_min_range_m and (
+            self.settings.near_guard_m <= 0 or self._surely_the_target(scan.index)
+        ):
             self.rejections_near += 1
             return  # too near for the camera to tell (settings)
         if self.settings.rollback:

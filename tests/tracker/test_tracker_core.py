@@ -233,14 +233,57 @@ def test_particle_batch_steps_match_the_per_track_steps(resampler, velocity_mode
         assert np.allclose(np.array(gated), batch, rtol=0, atol=1e-9)
         assert np.array_equal(np.isinf(np.array(gated)), np.isinf(batch))
         upd = [i for i in range(10) if i != step % 5]  # a track without a match this step
-        for i in upd:
-            one[i].update(z[i])
-        ParticleEstimator.update_all([many[i] for i in upd], z[upd])
+        scales = np.where(np.arange(len(upd)) % 3 == 0, 2.5, 1.0) if step % 2 else None
+        for n, i in enumerate(upd):
+            one[i].update(z[i], 1.0 if scales is None else float(scales[n]))
+        ParticleEstimator.update_all([many[i] for i in upd], z[upd], scales)
         for a, b in zip(one, many, strict=True):
             assert np.allclose(a.particles, b.particles, rtol=0, atol=1e-9)
             assert np.allclose(a.mean, b.mean, rtol=0, atol=1e-9)
             assert np.allclose(a.covariance, b.covariance, rtol=0, atol=1e-9)
             assert np.all(np.isfinite(b.particles))
+
+
+@pytest.mark.parametrize("name", ["particle", "ukf", "kalman_window"])
+def test_a_noisier_measurement_moves_the_estimate_less(name):
+    """noise_scale (the tracker's one_leg_noise_scale) widens the measurement noise: the same
+    measurement 0.2 m off pulls the estimate less, and 1 is the estimator's own model."""
+    make = estimator_factory(name)
+    moved = {}
+    for scale in (1.0, 3.0):
+        est = make(2.0, 0.0, np.random.default_rng(1))
+        for _ in range(5):  # settle on a person standing at (2, 0)
+            est.predict(0.12, 0)
+            est.update(np.array([2.0, 0.0]))
+        est.predict(0.12, 0)
+        before = est.mean[:2].copy()
+        est.update(np.array([2.0, 0.2]), scale)
+        moved[scale] = float(np.hypot(*(est.mean[:2] - before)))
+    assert 0 < moved[3.0] < 0.6 * moved[1.0]
+
+
+def test_one_leg_candidates_pull_the_track_less_when_asked():
+    """one_leg_noise_scale: a person seen by both legs, then by one leg 0.15 m aside (the
+    other hidden): the track follows the lone leg less (1 = the thesis, every candidate
+    alike)."""
+    out = {}
+    for scale in (1.0, 3.0):
+        trk = Tracker(TrackerSettings(acquire="nearest", one_leg_noise_scale=scale))
+        for k in range(6):
+            still_robot(trk, k * SCAN_NS)
+            trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
+        still_robot(trk, 6 * SCAN_NS)
+        leg = Leg(x_m=1.5, y_m=0.15, first_beam=100, last_beam=104, width_m=0.1)
+        one_leg = PersonCandidates(
+            stamp_ns=6 * SCAN_NS,
+            frame_id="base_laser",
+            n_beams=360,
+            candidates=[Candidate(x_m=1.5, y_m=0.15, range_m=1.51, bearing_rad=0.1, legs=[leg])],
+        )
+        target, _ = trk.step(one_leg)
+        assert target.status == "tracking"
+        out[scale] = target.y_m
+    assert 0 < out[3.0] < 0.6 * out[1.0]
 
 
 @pytest.mark.parametrize("name", sorted(set(registry.names()) | {"particle", "ukf"}))
@@ -498,20 +541,25 @@ def rejection(stamp_ns, xy, distance, threshold=0.8):
     )
 
 
-def rejected_every_scan(settings: TrackerSettings, xy, distance: float, scans: int):
-    """A target learnt at ``xy`` and seen there in every scan, whose candidate vision rejects
-    (``distance``) in scans 1..``scans``: the tracker, its first answer, the statuses after."""
+def rejected_every_scan(
+    settings: TrackerSettings, xy, distance: float, scans: int, others=(), hidden=()
+):
+    """A target learnt at ``xy`` and seen there in every scan (but those in ``hidden``), whose
+    candidate vision rejects (``distance``) in scans 1..``scans``; people at ``others`` all
+    along: the tracker, its first answer, the statuses after."""
     trk = Tracker(settings)
     trk.set_vision_alive(True)
     still_robot(trk, 0)
     trk.set_target_model(model(0, *xy))
-    first, _ = trk.step(cands(0, xy))
+    first, _ = trk.step(cands(0, xy, *others))
     statuses = []
     for k in range(1, scans + 1):
         still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS, xy))
+        seen = k not in hidden
+        target, _ = trk.step(cands(k * SCAN_NS, *([xy] if seen else []), *others))
         statuses.append(target.status)
-        trk.add_verification(rejection(k * SCAN_NS, xy, distance=distance))
+        if seen:
+            trk.add_verification(rejection(k * SCAN_NS, xy, distance=distance))
     return trk, first, statuses
 
 
@@ -545,6 +593,21 @@ def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_ra
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 5)
     assert ("lost" in statuses) == dropped
     assert trk.rejections_near == (0 if dropped else 4)
+
+
+@pytest.mark.parametrize(
+    ("others", "hidden", "dropped"),
+    [((), (), False), (((0.5, 0.7),), (), True), ((), (1,), True), (((2.5, 0.1),), (), False)],
+)
+def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others, hidden, dropped):
+    """near_guard_m: a near rejection counts for nothing only while the target took a
+    candidate on every scan since vision accepted it and nobody came within the guard. A
+    target that passed someone near it, or was hidden (a passer-by may have appeared where it
+    was), is judged as usual; someone farther than the guard changes nothing."""
+    settings = TrackerSettings(reject_min_range_m=0.7, near_guard_m=1.0, rollback=False)
+    trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 6, others, hidden)
+    assert ("lost" in statuses) == dropped
+    assert (trk.rejections_near > 0) != dropped
 
 
 @pytest.mark.parametrize("split", [0.4, 0.0])

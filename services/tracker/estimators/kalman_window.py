@@ -160,8 +160,9 @@ class KalmanWindowEstimator:
     def gate(self, misses: int = 0) -> float:
         return self.window_m / 2
 
-    def update(self, point: np.ndarray) -> None:
-        self._kf.update(np.asarray(point, dtype=float)[:2])
+    def update(self, point: np.ndarray, noise_scale: float = 1.0) -> None:
+        R = None if noise_scale == 1.0 else self._kf.R * noise_scale**2
+        self._kf.update(np.asarray(point, dtype=float)[:2], R=R)
         kf = self._kf
         kf.P = 0.5 * (kf.P + kf.P.T)
 

@@ -121,8 +121,9 @@ class NearestFeatureEstimator:
         s = self.settings
         return s.max_speed_mps * self._unseen_s + s.person_diameter_m  # seed 003 §VII step 8
 
-    def update(self, point: np.ndarray) -> None:
-        """The position becomes the feature's; the velocity their difference over the time."""
+    def update(self, point: np.ndarray, noise_scale: float = 1.0) -> None:
+        """The position becomes the feature's; the velocity their difference over the time.
+        (No noise model: ``noise_scale`` changes nothing.)"""
         s = self.settings
         z = np.asarray(point, dtype=float)[:2]
         if self._unseen_s > 0:

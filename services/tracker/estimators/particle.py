@@ -260,9 +260,10 @@ class ParticleEstimator:
         s = self.settings
         return s.gate_m + s.gate_growth * s.velocity_std_mps * self._dt_s * math.sqrt(misses)
 
-    def update(self, point: np.ndarray) -> None:
+    def update(self, point: np.ndarray, noise_scale: float = 1.0) -> None:
         """Weight by range and bearing (eq. 3-36), normalise, estimate (eq. 3-38); the
-        resampling is deferred (module docstring)."""
+        resampling is deferred (module docstring). ``noise_scale`` multiplies both standard
+        deviations."""
         p = self.particles
         self._cov = None
         zx, zy = float(point[0]), float(point[1])
@@ -276,10 +277,11 @@ class ParticleEstimator:
         dd = np.hypot(xr, yr)
         dd -= d_m
         # log w = -(d_m - d_p)^2 / sigma_d^2 - (A_m - A_p)^2 / sigma_A^2
+        k = 1.0 / (noise_scale * noise_scale)
         dd *= dd
-        dd *= -self._inv_sd2
+        dd *= -self._inv_sd2 * k
         da *= da
-        dd -= da * self._inv_sa2
+        dd -= da * (self._inv_sa2 * k)
         dd -= dd.max()  # the best particle gets exp(0): no underflow to all-zero weights
         w = np.exp(dd, out=dd)
         w /= w.sum()
@@ -353,11 +355,18 @@ class ParticleEstimator:
         return d
 
     @classmethod
-    def update_all(cls, estimators: Sequence[ParticleEstimator], points: np.ndarray) -> None:
-        """:meth:`update` of estimator i with ``points[i]`` (T, 2), for all at once."""
+    def update_all(
+        cls,
+        estimators: Sequence[ParticleEstimator],
+        points: np.ndarray,
+        noise_scales: np.ndarray | None = None,
+    ) -> None:
+        """:meth:`update` of estimator i with ``points[i]`` (T, 2) and ``noise_scales[i]``
+        (default 1), for all at once."""
         if not cls._batchable(estimators):
-            for e, z in zip(estimators, points, strict=True):
-                e.update(z)
+            scales = np.ones(len(estimators)) if noise_scales is None else noise_scales
+            for e, z, k in zip(estimators, points, scales, strict=True):
+                e.update(z, float(k))
             return
         e0 = estimators[0]
         cls.settle_all(estimators)
@@ -372,9 +381,14 @@ class ParticleEstimator:
         dd = np.sqrt(xr * xr + yr * yr)
         dd -= np.hypot(zx, zy)
         dd *= dd
-        dd *= -e0._inv_sd2
         da *= da
-        dd -= da * e0._inv_sa2
+        if noise_scales is None:
+            dd *= -e0._inv_sd2
+            dd -= da * e0._inv_sa2
+        else:
+            k = (1.0 / np.square(noise_scales))[:, None]
+            dd *= -e0._inv_sd2 * k
+            dd -= da * (e0._inv_sa2 * k)
         dd -= dd.max(axis=1, keepdims=True)
         w = np.exp(dd, out=dd)
         w /= w.sum(axis=1, keepdims=True)

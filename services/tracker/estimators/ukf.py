@@ -154,8 +154,9 @@ class UKFEstimator:
     def gate(self, misses: int = 0) -> float:
         return self.settings.gate_sigmas
 
-    def update(self, point: np.ndarray) -> None:
-        self._ukf.update(_hx(np.asarray(point, dtype=float)))
+    def update(self, point: np.ndarray, noise_scale: float = 1.0) -> None:
+        R = None if noise_scale == 1.0 else self._ukf.R * noise_scale**2
+        self._ukf.update(_hx(np.asarray(point, dtype=float)), R=R)
         self._symmetrise()
         self._unseen_s = 0.0
 
