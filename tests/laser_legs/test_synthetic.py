@@ -249,3 +249,26 @@ def test_a_half_hidden_leg_completes_a_lone_leg_only_when_asked_and_alone():
     # a wall right behind the leg is no leg: the run continues, it does not end in a jump back
     wall = make_scan([near], [(1.45, -0.5, 1.45, 0.5)])
     assert all(len(c.legs) == 1 for c in completed.detect(wall).candidates)
+
+
+def test_criterion_3_can_keep_the_others_apart_from_the_target():
+    """outside_gate: the thesis drops every leg beyond gate_m of the target's prediction;
+    keep_apart reports them too, paired only among themselves -- a bystander whose inner leg
+    lies in the target's gate does not pair with the target's legs, nor vanishes."""
+    target = person_legs(2.0, 0.0, separation_m=0.2)
+    bystander = person_legs(2.0, 0.55, separation_m=0.3)  # legs at y = 0.40 and 0.70
+    scan = make_scan([*target, *bystander])
+    drop = make_detector("thesis").detect(scan, (2.0, 0.0))
+    apart = make_detector("thesis", {"outside_gate": "keep_apart"}).detect(scan, (2.0, 0.0))
+    every = make_detector("thesis").detect(scan, None)
+
+    def people(msg):
+        return sorted((round(c.y_m * 4) / 4, len(c.legs)) for c in msg.candidates)
+
+    assert people(drop) == [(0.0, 2)]  # the thesis: only the target
+    assert people(apart) == [(0.0, 2), (0.5, 2)]  # both, each with its own legs
+    assert people(every) == people(apart)  # here as without criterion 3
+    # a leg of the bystander inside the gate stays on the target's side of the partition
+    close = make_scan([*target, *person_legs(2.0, 0.5, separation_m=0.3)])  # y 0.35, 0.65
+    got = make_detector("thesis", {"outside_gate": "keep_apart"}).detect(close, (2.0, 0.0))
+    assert people(got) == [(0.0, 2), (0.25, 1), (0.75, 1)]

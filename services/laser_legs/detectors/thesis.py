@@ -51,6 +51,7 @@ from ..core import (
     LegSet,
     Prediction,
     beam_geometry,
+    candidates_message,
     empty_candidates,
     gate,
     paired_candidates,
@@ -94,6 +95,11 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     min_width_m: float = 0.080  # thesis 4.3.2 eq. 4-5: 80 mm < W
     max_width_m: float = 0.300  # thesis 4.3.2 eq. 4-5: W < 300 mm
     gate_m: float = 0.400  # thesis 4.3.2 eq. 4-7: 400 mm (criterion 3)
+    outside_gate: Literal["drop", "keep_apart"] = "drop"
+    """Criterion 3's legs farther than gate_m from the target's prediction: ``drop`` them (the
+    thesis: it follows one person), or ``keep_apart`` -- report them too, paired only among
+    themselves, so the target's legs still never pair with anyone else's while everybody
+    else's tracks keep being fed (tracking/people)."""
     pair_distance_m: float = 0.500  # thesis 4.3.3: legs closer than 500 mm are one person
     pairing: Literal["closest_first", "matching"] = "closest_first"
     """thesis 4.3.3 pairs the closest legs first; ``matching`` keeps two people walking side by
@@ -303,7 +309,20 @@ class ClusterLegDetector:
 
     def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
         s = self.settings
+        if prediction is not None and s.outside_gate == "keep_apart":
+            legs, hidden = self._legs(scan, None, s.occluded_partner)
+            near = gate(legs, prediction, s.gate_m)
+            out = []
+            for part in (near, ~near):
+                if part.any():
+                    mine = hidden and [h for h, ok in zip(hidden, part.tolist(), strict=True) if ok]
+                    out += self._paired(scan, legs.select(part), mine).candidates
+            return candidates_message(scan, self.name, out)
         legs, hidden = self._legs(scan, prediction, s.occluded_partner)
+        return self._paired(scan, legs, hidden)
+
+    def _paired(self, scan: LaserScan, legs, hidden: list[Leg | None]) -> PersonCandidates:
+        s = self.settings
         if len(legs) == 0:
             return empty_candidates(scan, self.name)
 
