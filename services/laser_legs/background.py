@@ -231,6 +231,13 @@ class StaticBackground:
         self._key = None
         self._clear()
 
+    @property
+    def pose(self) -> np.ndarray:
+        """(x, y, θ) of the last scan given to :meth:`update` in the odometry frame (which
+        starts afresh, at zero, with every new history: watch :attr:`resets`). Zero when the
+        laser is taken as still (``ego_motion=False``)."""
+        return self._pose.copy()
+
     def update(
         self, scan: LaserScan, x: np.ndarray, y: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -31,10 +31,20 @@ log = logging.getLogger(__name__)
 VARIANTS: dict[str, tuple[str, dict]] = {
     "thesis_noclip": ("thesis", {"clip_range_m": None}),
     "arc_noclip": ("arc", {"clip_range_m": None}),
-    # the learned detector without its static background, at the thresholds chosen without it
+    # the learned detector without its temporal confirmation (tracks), at the thresholds
+    # chosen without it; and without the static background too
+    "learned_notrack": (
+        "learned",
+        {"track_memory_s": None, "threshold": 0.25, "pair_threshold": 0.10},
+    ),
     "learned_nobg": (
         "learned",
-        {"background_memory_s": None, "threshold": 0.35, "pair_threshold": 0.15},
+        {
+            "background_memory_s": None,
+            "track_memory_s": None,
+            "threshold": 0.35,
+            "pair_threshold": 0.15,
+        },
     ),
 }
 

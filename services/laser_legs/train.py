@@ -40,6 +40,14 @@ bag and /left_scan is fed in order to the label-free background model, and every
 the same out-of-fold scores; the highest validation recall wins (ties: fewer false persons on
 /left_scan, then shorter memory). The forest does not depend on it.
 
+Then, on top of the chosen background, the temporal confirmation (``LegTracks``;
+``LearnedSettings.track_*``): each stream is fed in order to the tracks (in the background's
+registered frame, reset where its history restarts), and every (``track_memory_s``,
+``track_weight``, ``track_velocity``) of the grids (``--track-memories`` 0.2 0.4 0.8,
+``--track-weights`` 0.2 0.3 0.5, velocity on and off; plus "off") gets its own thresholds by
+the same rule; the highest validation recall wins (ties: fewer false persons on /left_scan,
+then off, then the shorter memory).
+
 The final model is then fitted on all the training data.
 """
 
@@ -57,6 +65,7 @@ from .background import StaticBackground
 from .detectors.learned import (
     FEATURES,
     LearnedSettings,
+    LegTracks,
     default_model_path,
     features_and_centroids,
     save_model,
@@ -89,7 +98,7 @@ FOLDS = 4
 class ScanData:
     """Features, centroids and (for labelled scans) leg labels of one scan."""
 
-    __slots__ = ("counts", "cx", "cy", "features", "legs", "oof", "scan", "score")
+    __slots__ = ("counts", "cx", "cy", "features", "legs", "oof", "poses", "scan", "score")
 
     def __init__(self, scan, legs_xy: np.ndarray | None, s: LearnedSettings) -> None:
         st, en, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
@@ -102,6 +111,9 @@ class ScanData:
         """Out-of-fold vote shares (``score`` is what the decision sees)."""
         self.counts: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         """Background (hits, views) of each segment, by memory (s)."""
+        self.poses: dict[float, tuple[np.ndarray, bool]] = {}
+        """The scan's pose in the background's registered frame and whether the background's
+        history restarted at this scan, by memory (s)."""
 
 
 def _nearest(cx: np.ndarray, cy: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -260,7 +272,9 @@ def background_counts(
                 memory, hit_m=s.background_hit_m, ego_motion=s.background_ego_motion
             )
             for d in stream:
+                resets = bg.resets
                 d.counts[memory] = bg.update(d.scan, d.cx, d.cy)
+                d.poses[memory] = (bg.pose, bg.resets != resets)
 
 
 def with_background(
@@ -310,6 +324,72 @@ def choose_background(positives, negatives, args, s: LearnedSettings):
     return rows
 
 
+def with_tracks(
+    streams: list[list[ScanData]],
+    background_memory: float,
+    memory: float,
+    weight: float,
+    velocity: bool,
+    s: LearnedSettings,
+) -> None:
+    """``score`` (out-of-fold, background applied) confirmed by :class:`LegTracks`, each
+    stream fed in order as the detector would (memory 0: off, ``score`` unchanged)."""
+    if not memory:
+        return
+    for stream in streams:
+        tracks = LegTracks(
+            memory,
+            weight=weight,
+            gate_m=s.track_gate_m,
+            velocity=velocity,
+            max_gap_s=s.track_max_gap_s,
+        )
+        for d in stream:
+            pose = None
+            if background_memory:
+                pose, restarted = d.poses[background_memory]
+                if restarted:
+                    tracks.reset()
+            d.score = tracks.update(d.scan, d.cx, d.cy, d.score, pose)
+
+
+def choose_tracks(streams, positives, negatives, background, args, s: LearnedSettings):
+    """Every (memory, weight, velocity) of the grids on top of the chosen ``background``
+    (memory, fraction, penalty), with its own thresholds (:func:`choose_thresholds`); returns
+    the rows, best first: highest validation recall, then fewer false persons on /left_scan,
+    then off, then the shorter memory."""
+    far = args.far_negatives_m
+    bm, bf, bp = background
+    combos = [(0.0, 1.0, False)]
+    combos += [
+        (m, w, v)
+        for m in args.track_memories
+        if m
+        for w in args.track_weights
+        for v in (True, False)
+    ]
+    rows = []
+    for m, w, v in combos:
+        with_background([*positives, *negatives], bm, bf, s.background_min_views, bp)
+        with_tracks(streams, bm, m, w, v, s)
+        t, tp, rc, fp = choose_thresholds(
+            positives, negatives, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
+        )
+        bg = background_false(positives, t, tp, s.pair_distance_m, far)
+        rows.append((m, w, v, t, tp, rc, fp, bg))
+        log.info(
+            "tracks %s: threshold %.2f/%.2f recall %.3f false %.2f / %.2f",
+            (m, w, v),
+            t,
+            tp,
+            rc,
+            fp,
+            bg,
+        )
+    rows.sort(key=lambda r: (-r[5], r[6], r[0] > 0, r[0], -r[1], not r[2]))
+    return rows
+
+
 def _negatives_in_folds(neg: list[ScanData]) -> list[list[ScanData]]:
     q = len(neg) // FOLDS
     return [neg[i * q : (i + 1) * q if i < FOLDS - 1 else len(neg)] for i in range(FOLDS)]
@@ -341,6 +421,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--background-fractions", type=float, nargs="*", default=[0.7, 0.8, 0.9])
     p.add_argument("--background-penalties", type=float, nargs="*", default=[0.15, 0.3, 1.0])
+    p.add_argument(
+        "--track-memories",
+        type=float,
+        nargs="*",
+        default=[0.2, 0.4, 0.8],
+        help="track_memory_s values to cross-validate (none: temporal confirmation off)",
+    )
+    p.add_argument("--track-weights", type=float, nargs="*", default=[0.2, 0.3, 0.5])
     args = p.parse_args(argv)
     s = LearnedSettings()
     t0 = time.perf_counter()
@@ -399,7 +487,22 @@ def main(argv: list[str] | None = None) -> int:
         f"chosen background: background_memory_s {bm:g}, background_static_fraction {bf:g}, "
         f"background_penalty {bp:g}\n"
     )
+    # 3. the temporal confirmation on top of the chosen background, with its own thresholds
+    streams = [*pos, neg]
+    rows = choose_tracks(streams, all_pos, neg, (bm, bf, bp), args, s)
+    out.write(
+        "temporal confirmation on top of the chosen background (cross-validation, out-of-fold; "
+        "each with its own thresholds; memory 0 = off):\n  memory_s weight velocity | "
+        "threshold pair | recall | false/scan /left_scan | background\n"
+    )
+    for m, w, v, tt, ttp, r_, f_, b_ in rows:
+        out.write(
+            f"  {m:4.2f} {w:4.2f} {v!s:5} | {tt:.2f} {ttp:.2f} | {r_:.3f} | {f_:.2f} | {b_:.2f}\n"
+        )
+    tm, tw, tv = rows[0][:3]
+    out.write(f"chosen tracks: track_memory_s {tm:g}, track_weight {tw:g}, track_velocity {tv}\n")
     with_background([*all_pos, *neg], bm, bf, s.background_min_views, bp)
+    with_tracks(streams, bm, tm, tw, tv, s)
     t, tp, rc, fp = choose_thresholds(
         all_pos, neg, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
     )
@@ -426,7 +529,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(validation recall {rc:.3f}, false persons/scan {fp:.2f})\n"
     )
 
-    # 3. the final model on all the training data
+    # 4. the final model on all the training data
     X, Y = samples([*all_pos, *neg, *(d for a in aug for d in a), *sim], args.far_negatives_m)
     model = fit(X, Y, args.trees, args.depth, args.leg_prior, args.seed)
     save_model(model, args.output)

@@ -33,13 +33,21 @@ project whose recordings we evaluate on; our own feature set and code.
    clutter stay put, walking legs do not. The detector is then stateful: it expects the scans
    of one stream in order (a new size, frame, a stamp going back or a gap starts afresh).
 
-4. The forest's vote share for "leg" is each segment's score. Legs are paired as in the thesis
-   (500 mm, closest first) among the segments scoring at least ``min(threshold,
-   pair_threshold)``; a two-leg person is kept when both its legs score ``pair_threshold`` or
-   more, a single leg (also one of a rejected pair) when it scores ``threshold`` or more. So a
-   weaker leg is accepted next to a second leg, and a lone strong leg is still a person
-   candidate. Both thresholds are chosen by ``train.py`` with cross-validation inside the
-   training split.
+4. Optionally (``track_memory_s``), temporal confirmation (:class:`LegTracks`): short-lived
+   leg tracks in the registered frame of step 3 (the laser frame when the background is off)
+   carry an evidence ``e``, a running mean of the scores of the segments they took up. A
+   segment's score becomes ``w·s + (1 − w)·e`` with ``e`` the evidence of the track it
+   continues (0 for a new track): a leg seen over several scans keeps its score, a blob that
+   flickers up in one scan keeps only ``w`` of it. With this stage the detector is stateful
+   too (same resets as step 3).
+
+5. The forest's vote share for "leg" (after steps 3 and 4) is each segment's score. Legs are
+   paired as in the thesis (500 mm, closest first) among the segments scoring at least
+   ``min(threshold, pair_threshold)``; a two-leg person is kept when both its legs score
+   ``pair_threshold`` or more, a single leg (also one of a rejected pair) when it scores
+   ``threshold`` or more. So a weaker leg is accepted next to a second leg, and a lone strong
+   leg is still a person candidate. Both thresholds are chosen by ``train.py`` with
+   cross-validation inside the training split.
 
 The model file ships with the package (``services/laser_legs/models/``); it is produced by
 ``python -m followbot.services.laser_legs.train`` (reproducible: fixed seeds, documented data
@@ -64,6 +72,7 @@ from ..core import Prediction, beam_geometry, candidates_message, pair_legs, per
 __all__ = [
     "FEATURES",
     "LearnedSettings",
+    "LegTracks",
     "RandomTreesLegDetector",
     "default_model_path",
     "features_and_centroids",
@@ -131,10 +140,11 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """
 
     model_path: str = ""  # "" = the model shipped with the package
-    # thresholds chosen together with the background settings below (train.py; without the
-    # background, cross-validation chose 0.35 / 0.15: evaluate's `learned_nobg`)
-    threshold: float = 0.25  # vote share for a one-leg person (train.py, cross-validation)
-    pair_threshold: float = 0.10  # vote share of both legs of a two-leg person (same)
+    # thresholds chosen together with the background and track settings below (train.py; with
+    # the background but no tracks cross-validation chose 0.25 / 0.10: evaluate's
+    # `learned_notrack`; with neither 0.35 / 0.15: `learned_nobg`)
+    threshold: float = 0.10  # score for a one-leg person (train.py, cross-validation)
+    pair_threshold: float = 0.05  # score of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
     max_width_m: float = 0.6
@@ -149,13 +159,28 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     background_min_views: int = 5  # a choice: ~0.7 s of a 7.5 Hz laser
     background_hit_m: float = 0.15  # a choice: leg radius + matching error
     background_ego_motion: bool = True  # register scans (ICP); False: the laser is still
+    # temporal confirmation (LegTracks; not in the seeds): a segment's score becomes
+    # track_weight * score + (1 - track_weight) * the evidence of the leg track it continues
+    # (a running mean of its scores with time constant track_memory_s; 0 for a new track).
+    # None or 0: off (scores as they are).
+    track_memory_s: float | None = 0.8  # train.py, cross-validation
+    track_weight: float = 0.2  # train.py, cross-validation (1: off)
+    track_velocity: bool = True  # train.py, cross-validation (predict tracks at their speed)
+    track_gate_m: float = 0.3  # a choice: a labelled leg moves <= 0.18-0.42 m between scans (95 %)
+    track_max_gap_s: float = 0.5  # a choice: a longer pause between scans drops the tracks
 
     def __post_init__(self) -> None:
-        for name in ("threshold", "pair_threshold", "background_static_fraction"):
+        for name in ("threshold", "pair_threshold", "background_static_fraction", "track_weight"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1]")
         if self.background_memory_s is not None and not self.background_memory_s >= 0:
             raise ValueError("background_memory_s must be >= 0 (or None: off)")
+        m = self.track_memory_s
+        if m is not None and not (m >= 0 and math.isfinite(m)):
+            raise ValueError("track_memory_s must be finite and >= 0 (or None: off)")
+        for name in ("track_gate_m", "track_max_gap_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
         if not self.background_penalty >= 0:
             raise ValueError("background_penalty must be >= 0")
         if self.background_min_views < 1:
@@ -368,6 +393,155 @@ def select_legs(
     return out
 
 
+class LegTracks:
+    """Temporal confirmation of leg scores: short-lived leg tracks (beyond the seeds, issue 4;
+    in the spirit of leg_tracker's track confidence, our own code).
+
+    Each track ``j`` has a position ``p_j`` in a registered frame, a velocity ``v_j`` and an
+    evidence ``e_j`` in [0, 1]. For a scan ``Δt`` after the previous one, with segments at
+    ``x_i`` (moved into the registered frame by the scan's ``pose``) scoring ``s_i``::
+
+        a      = exp(−Δt / memory_s)                   share of the evidence kept
+        p̂_j    = p_j + v_j Δt                          prediction (p_j when velocity is off)
+        j(i)   : greedy nearest pairs |x_i − p̂_j| ≤ gate_m, each track and segment once
+        out_i  = w s_i + (1 − w) e_j(i)                e_j(i) = 0 for a segment no track takes
+        e_j    ← a e_j + (1 − a) s_i                   a running mean; a missed track: a e_j
+        v_j    ← ½ v_j + ½ (x_i − p_j) / Δt,  p_j ← x_i
+        new    : p = x_i, v = 0, e = (1 − a) s_i       as if its past scans had scored 0
+
+    (The first scan of a stream has no Δt: ``a = 1``, its new tracks start at ``e = 0``.)
+
+    So a leg seen over several scans keeps its score; a blob seen in one scan keeps ``w`` of
+    it. Tracks whose evidence falls below 0.01 are dropped (at most ``max_tracks``, the
+    strongest kept). A scan of another size, geometry or frame, a stamp going back or a pause
+    longer than ``max_gap_s`` starts afresh; the caller resets when its registered frame
+    restarts. Non-finite positions or scores neither match nor start tracks (their score is
+    returned as it is).
+
+    Parameters
+    ----------
+    memory_s: time constant of the evidence (s), > 0.
+    weight: ``w``, share of the current scan's score in [0, 1] (1: no confirmation).
+    gate_m: association radius (m).
+    velocity: predict tracks at their velocity.
+    max_gap_s: a longer pause between scans drops every track (s).
+    """
+
+    def __init__(
+        self,
+        memory_s: float,
+        *,
+        weight: float = 0.2,
+        gate_m: float = 0.3,
+        velocity: bool = True,
+        max_gap_s: float = 0.5,
+        max_tracks: int = 256,
+    ) -> None:
+        if not (memory_s > 0 and math.isfinite(memory_s)):
+            raise ValueError("memory_s must be finite and > 0")
+        if not 0.0 <= weight <= 1.0:
+            raise ValueError("weight must be in [0, 1]")
+        if not gate_m > 0 or not max_gap_s > 0 or max_tracks < 1:
+            raise ValueError("gate_m and max_gap_s must be > 0, max_tracks >= 1")
+        self.memory_s = float(memory_s)
+        self.weight = float(weight)
+        self.gate_m = float(gate_m)
+        self.velocity = bool(velocity)
+        self.max_gap_ns = int(max_gap_s * 1e9)
+        self.max_tracks = int(max_tracks)
+        self.resets = 0
+        """How many times the tracks were dropped for a new stream, a stamp going back or a
+        pause (for tests)."""
+        self._key: tuple | None = None
+        self._clear()
+
+    def _clear(self) -> None:
+        self._stamp: int | None = None
+        self._t = np.zeros((5, 0))  # rows: x, y, vx, vy, evidence
+
+    def reset(self) -> None:
+        """Drop every track (a new stream, or the registered frame restarted)."""
+        self._key = None
+        self._clear()
+
+    @property
+    def count(self) -> int:
+        """How many tracks are kept."""
+        return int(self._t.shape[1])
+
+    def update(
+        self,
+        scan: LaserScan,
+        x: np.ndarray,
+        y: np.ndarray,
+        score: np.ndarray,
+        pose: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Confirmed scores of the segments at (``x``, ``y``) (laser frame) scoring ``score``;
+        ``pose`` (x, y, θ) places the scan in the registered frame (None: the laser frame)."""
+        score = np.asarray(score, dtype=np.float64)
+        key = (scan.ranges.shape[0], float(scan.angle_min_rad), float(scan.angle_increment_rad))
+        key += (scan.frame_id,)
+        stamp = int(scan.stamp_ns)
+        if key != self._key:
+            if self._key is not None:
+                self.resets += 1
+            self._key = key
+            self._clear()
+        elif self._stamp is not None and not 0 <= stamp - self._stamp <= self.max_gap_ns:
+            self.resets += 1
+            self._clear()
+        dt = 0.0 if self._stamp is None else (stamp - self._stamp) * 1e-9
+        self._stamp = stamp
+        a = math.exp(-dt / self.memory_s)
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        if pose is not None and np.all(np.isfinite(pose)):
+            c, s_ = math.cos(float(pose[2])), math.sin(float(pose[2]))
+            x, y = c * x - s_ * y + float(pose[0]), s_ * x + c * y + float(pose[1])
+        ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y) & np.isfinite(score))
+        tx, ty, tvx, tvy, te = self._t
+        px, py = (tx + tvx * dt, ty + tvy * dt) if self.velocity else (tx, ty)
+        track = np.full(score.shape[0], -1, dtype=np.intp)  # the track each segment continues
+        if ok.shape[0] and tx.shape[0]:
+            d = np.hypot(x[ok, None] - px, y[ok, None] - py)
+            si, tj = np.nonzero(d <= self.gate_m)
+            taken_s: set[int] = set()
+            taken_t: set[int] = set()
+            for f in np.argsort(d[si, tj], kind="stable").tolist():  # closest pairs first
+                i, j = int(si[f]), int(tj[f])
+                if i not in taken_s and j not in taken_t:
+                    taken_s.add(i)
+                    taken_t.add(j)
+                    track[ok[i]] = j
+        hit = np.flatnonzero(track >= 0)
+        j = track[hit]
+        prior = np.zeros(score.shape[0])
+        prior[hit] = te[j]
+        out = self.weight * score + (1.0 - self.weight) * prior  # out_i = w s_i + (1 − w) e_j(i)
+        out[~np.isfinite(score)] = score[~np.isfinite(score)]
+        # the tracks after this scan
+        t = self._t.copy()
+        t[4] *= a  # a missed track: a e_j
+        t[4, j] += (1.0 - a) * score[hit]  # e_j ← a e_j + (1 − a) s_i
+        if dt > 0:
+            t[2, j] = 0.5 * tvx[j] + 0.5 * (x[hit] - tx[j]) / dt
+            t[3, j] = 0.5 * tvy[j] + 0.5 * (y[hit] - ty[j]) / dt
+        t[0, j], t[1, j] = x[hit], y[hit]
+        keep = t[4] >= 0.01
+        keep[j] = True
+        new = np.setdiff1d(ok, hit, assume_unique=True)
+        born = np.zeros((5, new.shape[0]))
+        born[0], born[1] = x[new], y[new]
+        born[4] = (1.0 - a) * score[new]
+        t = np.concatenate([t[:, keep], born], axis=1)
+        t[4] = np.clip(t[4], 0.0, 1.0)
+        if t.shape[1] > self.max_tracks:
+            t = t[:, np.argsort(-t[4], kind="stable")[: self.max_tracks]]
+        self._t = t
+        return out
+
+
 class RandomTreesLegDetector:
     """Random-trees classifier on segment features; legs paired into persons."""
 
@@ -384,11 +558,23 @@ class RandomTreesLegDetector:
             self.background = StaticBackground(
                 s.background_memory_s, hit_m=s.background_hit_m, ego_motion=s.background_ego_motion
             )
+        self.tracks: LegTracks | None = None
+        """The temporal confirmation stage (stateful), or None."""
+        if s.track_memory_s:
+            self.tracks = LegTracks(
+                s.track_memory_s,
+                weight=s.track_weight,
+                gate_m=s.track_gate_m,
+                velocity=s.track_velocity,
+                max_gap_s=s.track_max_gap_s,
+            )
 
     def reset(self) -> None:
         """Forget the scans seen so far (a new stream)."""
         if self.background is not None:
             self.background.reset()
+        if self.tracks is not None:
+            self.tracks.reset()
 
     def static_segments(self, scan: LaserScan, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
         """Register ``scan`` with the background model; True for the segments (centroids
@@ -396,10 +582,17 @@ class RandomTreesLegDetector:
         if self.background is None:
             return np.zeros(cx.shape[0], dtype=bool)
         s = self.settings
+        resets = self.background.resets
         hits, views = self.background.update(scan, cx, cy)
+        if self.background.resets != resets and self.tracks is not None:
+            self.tracks.reset()  # the registered frame restarts
         return StaticBackground.static_mask(
             hits, views, s.background_static_fraction, s.background_min_views
         )
+
+    def _pose(self) -> np.ndarray | None:
+        """The last scan's pose in the background's registered frame (None without it)."""
+        return None if self.background is None else self.background.pose
 
     @property
     def model(self):
@@ -418,14 +611,19 @@ class RandomTreesLegDetector:
         s = self.settings
         starts, ends, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
         if starts.shape[0] == 0:
-            if self.background is not None:  # the background still sees every scan
-                self.static_segments(scan, np.zeros(0), np.zeros(0))
+            z = np.zeros(0)
+            if self.background is not None:  # the background and the tracks see every scan
+                self.static_segments(scan, z, z)
+            if self.tracks is not None:
+                self.tracks.update(scan, z, z, z, self._pose())
             return candidates_message(scan, self.name, [])
         inc = abs(float(scan.angle_increment_rad)) or math.radians(0.5)
         feats, cx, cy = features_and_centroids(starts, ends, x, y, r, valid, inc)
         score = self.leg_scores(feats)
         if self.background is not None:
             score = score - s.background_penalty * self.static_segments(scan, cx, cy)
+        if self.tracks is not None:
+            score = self.tracks.update(scan, cx, cy, score, self._pose())
         if prediction is not None:
             px, py = float(prediction[0]), float(prediction[1])
             if math.isfinite(px) and math.isfinite(py):
