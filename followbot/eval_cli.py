@@ -52,8 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-record", action="store_true", help="do not write MCAP recordings")
     p.add_argument(
         "--set", action="append", default=[], metavar="STAGE.KEY=VALUE",
-        help="a stage setting on top of the preset, e.g. --set laser_legs.detector_settings.pairing=matching "
-        "(repeatable; stages: sim, laser_legs, vision_verify, tracker, controller)",
+        help="a stage setting on top of the preset, e.g. --set tracker.max_misses=4 or "
+        "--set laser_legs.detector_settings.pairing=matching (repeatable; stages: sim, "
+        "laser_legs, vision_verify, tracker, controller)",
     )  # fmt: skip
     args = p.parse_args(argv)
     scenarios = args.scenario or builtin_scenarios()

@@ -659,7 +659,7 @@ def test_stage_overrides_apply_and_bad_ones_are_refused():
     assert settings["laser_legs"]["detector"] == "thesis"  # the preset's keys stay
     assert settings["tracker"]["max_misses"] == 4 and settings["sim"]["seed"] == 3
     for bad in ("max_misses=4", "nobody.key=1", "tracker.max_misses"):
-        with pytest.raises(RunError, match="STAGE.key=value"):
+        with pytest.raises(RunError, match=r"STAGE\.key=value"):
             apply_stage_overrides(settings, [bad])
     # the command refuses a bad --set before running anything (exit 2, no report)
     assert eval_main(["--output", "/nonexistent/never", "--set", "oops=1"]) == 2

@@ -11,7 +11,8 @@ Rule (from the target's estimate in the base frame of its scan):
 
 By status: ``tracking`` applies the rule; ``coasting`` keeps the previous goal (thesis 3.6.2.8:
 fewer than 9 misses keep the previous command); ``lost`` and ``initialising`` stop; the
-watchdog (no fresh target, tracker gone) stops.
+watchdog (no fresh target, tracker gone) stops. While lost the camera pans to the person the
+tracker names for a look (``pan_to_look``, beyond the thesis), else it holds its angle.
 
 Limits, applied to every command whatever produced it (dt: time since the previous command):
 
@@ -55,6 +56,9 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     turn_accel_deg_s2: _Pos = 300.0
     reverse: bool = False
     """Never drive backwards unless allowed (the thesis robot only follows)."""
+    pan_to_look: bool = True
+    """Beyond the thesis: while the target is lost, pan the camera to the person the tracker
+    names (TrackState.look_*) so vision can re-identify the target; the base stays still."""
 
 
 class Command(msgspec.Struct, frozen=True):
@@ -99,6 +103,8 @@ class FollowController:
         if status == "coasting":
             v, w, pan = self._goal
             return v, w, pan, "coasting"
+        if status == "lost" and s.pan_to_look and target.look_track_id >= 0:
+            return 0.0, 0.0, math.atan2(target.look_y_m, target.look_x_m), status  # stop, look
         if status != "tracking":
             return 0.0, 0.0, self.pan, status  # lost / initialising: stop, camera stays
         x, y = target.x_m, target.y_m

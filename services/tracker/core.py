@@ -285,6 +285,17 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     (thesis_5_2_4_side_by_side). 0: off, as the thesis."""
     coast_max_speed_mps: Annotated[float, msgspec.Meta(gt=0)] = 2.5
     """The coasting velocity is clipped to this speed (a brisk walk)."""
+    look_while_lost: bool = False
+    """Beyond the thesis: while the target is lost (and vision alive), name in tracking/target
+    a person for the camera to look at (``look_*``), so vision can judge them and re-acquire
+    the target by appearance; the controller pans there, the base stays still. Moving tracks
+    first, nearest to where the target was lost first; each in turn until vision has judged
+    it (or look_dwell_s passed), those vision rejected look_rejections times are skipped."""
+    look_dwell_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    look_rejections: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    look_min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    """Nearer than this the camera sees too little of a person to judge (docs/tracker.md)."""
+    look_moving_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.25
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
     vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
@@ -388,6 +399,10 @@ class Tracker:
         self._confirmed_index = -1  # last scan whose verification accepted the target's candidate
         # scans at which the target missed or had another track within near_guard_m
         self._breaks: deque[int] = deque()
+        # look_while_lost: (track looked at, since when), tracks judged since the loss
+        self._look: tuple[int, int] = (-1, 0)
+        self._look_rejected: dict[int, int] = {}
+        self._look_done: set[int] = set()  # looked at for look_dwell_s without a judgement
         self._now: tuple[int, Pose | None] = (0, None)
         self.steps_without_odometry = 0
         self._rest: _Rest | None = None  # what step_rest still has to do
@@ -417,6 +432,7 @@ class Tracker:
         self._lost_at = None
         self._switch = (-1, 0)
         self._breaks.clear()
+        self._forget_looks()
 
     # ------------------------------------------------------------------ the step
 
@@ -591,6 +607,10 @@ class Tracker:
         # acquisition without vision (settings) and laser-only re-acquisition
         if self.target_id < 0:
             self._acquire_by_laser(z, matched, vision=not any(f in _NO_VISION for f in flags))
+        if self.target_id < 0 and self._had_target and s.look_while_lost and self.vision_alive:
+            self._choose_look(stamp, pose)
+        elif self._look[0] >= 0 or self._look_rejected or self._look_done:
+            self._forget_looks()
         if self.target_id >= 0 and self.target_id in matched:
             sources.insert(0, "laser")
         if self._vision_sources:
@@ -727,6 +747,49 @@ class Tracker:
         if self.settings.coast_velocity_s > 0:
             self._learn_velocity(track, stamp_ns, self._now[1])  # where it was first seen
         return tid
+
+    def _forget_looks(self) -> None:
+        self._look = (-1, 0)
+        self._look_rejected.clear()
+        self._look_done.clear()
+
+    def _choose_look(self, stamp: int, pose: Pose | None) -> None:
+        """look_while_lost: keep looking at the current track until vision judged it or
+        look_dwell_s passed, then the next (settings)."""
+        s = self.settings
+        tid, since = self._look
+        if tid >= 0 and (
+            tid not in self.tracks
+            or self._look_rejected.get(tid, 0) >= s.look_rejections
+            or stamp - since > s.look_dwell_s * _NS
+        ):
+            self._look_done.add(tid)
+            tid = -1
+        if tid >= 0 and self.tracks[tid].misses == 0:
+            return
+        eligible = [
+            t
+            for t in self.tracks.values()
+            if t.hits >= s.confirm_hits
+            and t.misses == 0
+            and self._look_rejected.get(t.id, 0) < s.look_rejections
+            and float(np.hypot(*t.position)) >= s.look_min_range_m
+        ]
+        fresh = [t for t in eligible if t.id not in self._look_done]
+        if eligible and not fresh:  # each looked at once: round again
+            self._look_done.clear()
+            fresh = eligible
+        if not fresh:
+            self._look = (-1, 0)
+            return
+        origin = np.zeros(2) if self._lost_at is None else self._lost_at
+
+        def rank(t: Track) -> tuple[bool, float]:
+            moving = float(np.hypot(*self._velocity(t, pose))) >= s.look_moving_mps
+            return (not moving, float(np.hypot(*(t.position - origin))))
+
+        best = min(fresh, key=rank)
+        self._look = (best.id, stamp if best.id != tid else since)
 
     def _note_break(self) -> None:
         """Remember this scan when the target missed or another track is near it."""
@@ -873,7 +936,13 @@ class Tracker:
         return d <= self.settings.model_match_m
 
     def _judge_target(self, v: Verification, scan: _Scan) -> None:
-        """Negative evidence: vision saw the target's candidate and said it is not the target."""
+        """Negative evidence: vision saw the target's candidate and said it is not the target.
+        (While the target is lost: which tracks vision has rejected, for look_while_lost.)"""
+        if self.target_id < 0 and self._had_target and v.threshold is not None:
+            for c in v.candidates:
+                tid = scan.assoc.get(c.index, -1)
+                if tid >= 0 and c.in_view and c.distance is not None and c.distance > v.threshold:
+                    self._look_rejected[tid] = self._look_rejected.get(tid, 0) + 1
         if self.target_id < 0 or v.threshold is None or not self.settings.reject_votes:
             return
         mine = [i for i, tid in scan.assoc.items() if tid == self.target_id]
@@ -986,6 +1055,8 @@ class Tracker:
             )
         else:
             x, y = (0.0, 0.0) if self._lost_at is None else map(float, self._lost_at)
+            look = self.tracks.get(self._look[0])
+            lx, ly = (0.0, 0.0) if look is None else map(float, look.position)
             target = TrackState(
                 stamp_ns=stamp,
                 frame_id=frame_id,
@@ -996,6 +1067,9 @@ class Tracker:
                 sources=sources,
                 flags=flags,
                 estimator=self.estimator_name,
+                look_track_id=-1 if look is None else look.id,
+                look_x_m=lx,
+                look_y_m=ly,
             )
         return target
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -54,6 +55,30 @@ def test_coasting_keeps_the_previous_goal_lost_stops():
     for _ in range(10):
         c = ctl.on_target(target(0.0, 0.0, status="lost"), 0.12)
     assert (c.linear_mps, c.angular_radps, c.reason) == (0.0, 0.0, "lost")
+
+
+def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limits():
+    """pan_to_look: a lost target with someone to look at (TrackState.look_*) turns the camera
+    there at 90 deg/s, at most 100 deg; the base never moves. Off: the camera holds."""
+    for on in (True, False):
+        ctl = FollowController(ControllerSettings(pan_to_look=on))
+        lost = TrackState(
+            stamp_ns=0, frame_id="base_link", status="lost",
+            look_track_id=4, look_x_m=-1.0, look_y_m=1.0,  # 135 deg left: beyond the limit
+        )  # fmt: skip
+        pans = []
+        for _ in range(20):
+            c = ctl.on_target(lost, 0.12)
+            assert (c.linear_mps, c.angular_radps, c.reason) == (0.0, 0.0, "lost")
+            pans.append(math.degrees(c.pan_rad))
+        if on:
+            assert pans[0] == pytest.approx(90 * 0.12)
+            assert pans[-1] == pytest.approx(100.0)
+            assert all(b - a <= 90 * 0.12 + 1e-9 for a, b in itertools.pairwise(pans))
+        else:
+            assert pans == [0.0] * 20
+    nobody = TrackState(stamp_ns=0, frame_id="base_link", status="lost", look_x_m=0.0, look_y_m=2.0)
+    assert FollowController().on_target(nobody, 0.12).pan_rad == 0.0  # look_track_id -1
 
 
 def test_the_watchdog_brakes_to_rest_within_the_deceleration_limit():

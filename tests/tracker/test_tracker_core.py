@@ -468,6 +468,60 @@ def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
     assert abs(target.y_m - 1.2) < 0.2
 
 
+def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
+    """look_while_lost: nearest to where the target was lost first; a person vision rejected
+    look_rejections times is not looked at again; none while tracking or when switched off."""
+    trk = following_at_two(look_while_lost=True, look_dwell_s=10.0)
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
+    for k in range(1, 11):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    assert target.status == "lost" and target.look_track_id == -1  # nobody to look at
+    a, b = (1.5, 1.0), (3.0, -1.0)  # a: 1.1 m from where the target was lost, b: 1.4 m
+    looks = []
+    for k in range(11, 20):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, a, b))
+        ids = {(round(t.x_m, 1), round(t.y_m, 1)): t.id for t in people.tracks}
+        looks.append(target.look_track_id)
+        if k >= 13:  # vision sees a and rejects it, twice (applied a scan later)
+            trk.add_verification(
+                verification(k * SCAN_NS, [a, b], chosen=-1, distances=[1.2, None], threshold=0.8)
+            )
+    assert target.status == "lost"
+    assert looks[0] == -1  # not yet confirmed (confirm_hits)
+    assert looks[1:4] == [ids[a]] * 3
+    assert looks[4:] == [ids[b]] * 5  # a was rejected twice (scans 13, 14): the camera turns to b
+    assert (target.look_x_m, target.look_y_m) == pytest.approx(b, abs=0.05)
+    off = following_at_two()
+    for k in range(1, 15):
+        still_robot(off, k * SCAN_NS)
+        target, _ = off.step(cands(k * SCAN_NS, *([a, b] if k > 10 else [])))
+    assert target.status == "lost" and target.look_track_id == -1
+
+
+def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
+    # (vision judges nobody here: no laser-only re-acquisition of the still one meanwhile)
+    trk = following_at_two(look_while_lost=True, look_dwell_s=0.5, laser_reacquire_m=0.0)
+    for k in range(1, 11):
+        still_robot(trk, k * SCAN_NS)
+        trk.step(cands(k * SCAN_NS))
+    still, looks = (2.2, 0.3), []  # still: nearest to where the target was lost
+    for k in range(11, 40):
+        walker = (3.0, -1.5 + 0.08 * (k - 11))  # 0.67 m/s, farther away
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, still, walker))
+        looks.append(target.look_track_id)
+    ids = {t.id: (t.x_m, t.y_m) for t in people.tracks}
+    walker_id = min(ids, key=lambda i: abs(ids[i][0] - 3.0))
+    still_id = min(ids, key=lambda i: abs(ids[i][0] - 2.2))
+    first = next(i for i in looks if i >= 0)
+    assert first in (walker_id, still_id)  # before the walker's velocity is known
+    assert walker_id in looks and still_id in looks  # nobody judged: each in turn (dwell)
+    k_walker = looks.index(walker_id)
+    assert looks[k_walker : k_walker + 4] == [walker_id] * 4  # it dwells 0.5 s = 4 scans
+
+
 def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
     trk = Tracker(TrackerSettings(acquire="nearest"))
     for k in range(12):
