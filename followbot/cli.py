@@ -35,9 +35,10 @@ def _cmd_run(args: argparse.Namespace, rest: list[str]) -> int:
     from followbot.services.runtime.plugins import UnknownPlugin
 
     if "+" in args.service:  # several services in one process (docs/runtime.md)
+        from followbot.services.runtime.container import exit_now
         from followbot.services.runtime.container import main as run_together
 
-        return run_together(args.service.split("+"), args.args)
+        exit_now(run_together(args.service.split("+"), args.args))
     try:
         main = _services().load(args.service)
     except UnknownPlugin as exc:

@@ -308,6 +308,14 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     """Longer gaps between scans are clamped (a paused recording must not explode the cloud)."""
 
+    def __post_init__(self) -> None:
+        # checked while the settings load, so an unknown estimator or a bad estimator setting
+        # fails before any network is opened (exit code 2, the message naming it)
+        try:
+            estimator_factory(self.estimator, self.estimator_settings)
+        except LookupError as exc:  # plugins.UnknownPlugin
+            raise ValueError(str(exc).strip("'\"")) from None
+
 
 class Track:
     """One tracked person: an estimator plus the bookkeeping of the tracker."""

@@ -31,6 +31,9 @@ _TrackerNodeBase = with_node_settings(TrackerSettings, "_TrackerNodeBase", __nam
 
 
 class TrackerNodeSettings(_TrackerNodeBase, kw_only=True, forbid_unknown_fields=True):
+    def __post_init__(self) -> None:
+        core_settings(self)  # TrackerSettings' checks (the estimator) while the settings load
+
     vision_service: str = "vision_verify"
     """Whose liveliness says vision is there (else the status carries no_vision)."""
     lockstep_odometry_wait_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 0.0

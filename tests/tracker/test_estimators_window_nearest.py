@@ -348,7 +348,9 @@ def test_both_are_installed_plugins_and_unknown_names_list_them():
         cls = registry.load(name)
         assert cls is BUILTIN[name] and cls.name == name
     with pytest.raises(UnknownPlugin, match=r"valid names: .*kalman_window.*nearest"):
-        Tracker(TrackerSettings(estimator="kalman"))
+        registry.load("kalman")
+    with pytest.raises(ValueError, match=r"valid names: .*kalman_window.*nearest"):
+        TrackerSettings(estimator="kalman")
 
 
 def test_every_preset_names_an_installed_estimator():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -19,7 +20,6 @@ from followbot.schemas import (
     VerifiedCandidate,
     encode,
 )
-from followbot.services.runtime.plugins import UnknownPlugin
 from followbot.services.tracker.core import (
     OdometryBuffer,
     Tracker,
@@ -303,9 +303,16 @@ def test_every_estimator_follows_a_walker_at_0_6_mps(name):
     assert np.sqrt(np.mean(np.square(errs[10:]))) < 0.1
 
 
-def test_unknown_estimator_lists_the_valid_names():
-    with pytest.raises(UnknownPlugin, match=r"valid names: .*particle"):
-        Tracker(TrackerSettings(estimator="nope"))
+def test_unknown_estimator_lists_the_valid_names_when_the_settings_load():
+    # before any network is opened: the service exits 2 naming it (also in a group process)
+    with pytest.raises(ValueError, match=r"valid names: .*particle"):
+        TrackerSettings(estimator="nope")
+    from followbot.services.tracker.node import TrackerNodeSettings
+
+    with pytest.raises(msgspec.ValidationError, match=r"unknown estimator 'nope'"):
+        msgspec.convert({"estimator": "nope"}, TrackerNodeSettings)
+    with pytest.raises(msgspec.ValidationError, match=r"particles"):
+        msgspec.convert({"estimator_settings": {"particles": -3}}, TrackerNodeSettings)
 
 
 # --------------------------------------------------------------------------- the tracker
