@@ -235,6 +235,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     within this distance (0: never without vision)."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
     """Consecutive verifications preferring another track before the target moves to it."""
+    switch_needs_target_seen: bool = False
+    """A verification preferring another track counts towards switch_votes only when vision
+    also judged the target's own candidate, or the target took none in that scan. Else
+    something vision judged alone -- a passer-by or a pillar in front of the target -- may
+    be preferred just because the camera could not see the target behind it."""
     reject_votes: Annotated[int, msgspec.Meta(ge=0, le=100)] = 2
     """Drop the target after this many consecutive verifications that saw its candidate and
     rejected it (appearance distance above the verifier's threshold): the robot stops rather
@@ -927,12 +932,23 @@ class Tracker:
             self._switch = (-1, 0)
             self._vision_sources = True
             return
+        if self.settings.switch_needs_target_seen and self._target_hidden_in(v, scan):
+            return  # vision could not compare: someone (or something) hides the target
         prev, votes = self._switch
         votes = votes + 1 if prev == tid else 1
         self._switch = (tid, votes)
         if votes >= self.settings.switch_votes or self._repairs_split(tid):
             self._set_target(tid)
             self._vision_sources = True
+
+    def _target_hidden_in(self, v: Verification, scan: _Scan) -> bool:
+        """The target took a candidate in ``scan`` (the laser saw it) but vision did not judge
+        that candidate (out of the image, hidden in it by something nearer, too small)."""
+        mine = {i for i, t in scan.assoc.items() if t == self.target_id}
+        if not mine:
+            return False  # the target was not seen: vision's choice may well be it
+        judged = {c.index for c in v.candidates if c.distance is not None}
+        return not mine & judged
 
     def _repairs_split(self, tid: int) -> bool:
         """Vision chose a track next to the target while the target coasts: after a rollback

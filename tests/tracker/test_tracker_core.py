@@ -445,6 +445,33 @@ def test_late_verification_applies_to_the_scan_it_names_after_the_lag():
     assert trk.verifications_applied == 2 and trk.target_switches == 1
 
 
+@pytest.mark.parametrize(
+    ("needs_seen", "target_judged", "switched"),
+    [(False, False, True), (True, False, False), (True, True, True)],
+)
+def test_a_switch_needs_vision_to_have_seen_the_target_when_asked(
+    needs_seen, target_judged, switched
+):
+    """switch_needs_target_seen: the laser sees the target at (2, 0); vision prefers a thing
+    at (0.8, 0.3) in front of it, twice. Without seeing the target (its candidate not judged:
+    hidden in the image) that is no evidence against it; having seen it worse, it is."""
+    trk = following_at_two(switch_needs_target_seen=needs_seen)
+    front, me = (0.8, 0.3), (2.0, 0.0)
+    for k in range(1, 6):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, me, front))
+        if k in (2, 3):
+            trk.add_verification(
+                verification(
+                    k * SCAN_NS, [me, front], chosen=1,
+                    distances=[1.0 if target_judged else None, 0.6], threshold=0.8,
+                )
+            )  # fmt: skip
+    front_id = next(t.id for t in people.tracks if abs(t.x_m - 0.8) < 0.2)
+    assert (target.track_id == front_id) == switched
+    assert target.status == "tracking"
+
+
 def test_verification_naming_an_unknown_scan_is_counted_not_applied():
     trk = Tracker(TrackerSettings(acquire="nearest"))
     still_robot(trk, 10 * SCAN_NS)
