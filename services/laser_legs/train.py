@@ -290,6 +290,19 @@ def with_background(
             d.score = d.oof
 
 
+def _operating_point(what, setting, positives, negatives, args, s: LearnedSettings, far):
+    """(threshold, pair threshold, recall, false/scan, background false/scan) of one setting
+    of a stage (the scores already recomputed with it), logged."""
+    t, tp, rc, fp = choose_thresholds(
+        positives, negatives, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
+    )
+    bg = background_false(positives, t, tp, s.pair_distance_m, far)
+    log.info(
+        "%s %s: threshold %.2f/%.2f recall %.3f false %.2f / %.2f", what, setting, t, tp, rc, fp, bg
+    )
+    return t, tp, rc, fp, bg
+
+
 def choose_background(positives, negatives, args, s: LearnedSettings):
     """Every (memory, static fraction, penalty) of the grids, with its own thresholds
     (:func:`choose_thresholds`); returns the rows, best first: highest validation recall,
@@ -306,19 +319,13 @@ def choose_background(positives, negatives, args, s: LearnedSettings):
     rows = []
     for m, f, p in combos:
         with_background([*positives, *negatives], m, f, s.background_min_views, p)
-        t, tp, rc, fp = choose_thresholds(
-            positives, negatives, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
-        )
-        bg = background_false(positives, t, tp, s.pair_distance_m, far)
-        rows.append((m, f, p, t, tp, rc, fp, bg))
-        log.info(
-            "background %s: threshold %.2f/%.2f recall %.3f false %.2f / %.2f",
-            (m, f, p),
-            t,
-            tp,
-            rc,
-            fp,
-            bg,
+        rows.append(
+            (
+                m,
+                f,
+                p,
+                *_operating_point("background", (m, f, p), positives, negatives, args, s, far),
+            )
         )
     rows.sort(key=lambda r: (-r[5], r[6], r[0], -r[1], r[2]))
     return rows
@@ -372,19 +379,8 @@ def choose_tracks(streams, positives, negatives, background, args, s: LearnedSet
     for m, w, v in combos:
         with_background([*positives, *negatives], bm, bf, s.background_min_views, bp)
         with_tracks(streams, bm, m, w, v, s)
-        t, tp, rc, fp = choose_thresholds(
-            positives, negatives, args.max_false_per_scan, s.pair_distance_m, background_far_m=far
-        )
-        bg = background_false(positives, t, tp, s.pair_distance_m, far)
-        rows.append((m, w, v, t, tp, rc, fp, bg))
-        log.info(
-            "tracks %s: threshold %.2f/%.2f recall %.3f false %.2f / %.2f",
-            (m, w, v),
-            t,
-            tp,
-            rc,
-            fp,
-            bg,
+        rows.append(
+            (m, w, v, *_operating_point("tracks", (m, w, v), positives, negatives, args, s, far))
         )
     rows.sort(key=lambda r: (-r[5], r[6], r[0] > 0, r[0], -r[1], not r[2]))
     return rows
