@@ -235,6 +235,10 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     within this distance (0: never without vision)."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
     """Consecutive verifications preferring another track before the target moves to it."""
+    reacquire_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = None
+    """A lost target is re-taken by appearance only when vision's distance is at most this
+    (None: the verifier's own threshold). In the simulator 94 % of the target's judgements lie
+    at or below 0.7 and 17 % of the bystanders' (at 0.8: 98 % and 49 %)."""
     switch_needs_target_seen: bool = False
     """A verification preferring another track counts towards switch_votes only when vision
     also judged the target's own candidate, or the target took none in that scan. Else
@@ -925,6 +929,9 @@ class Tracker:
             if tid < 0:
                 return
         if self.target_id < 0:
+            limit = self.settings.reacquire_max_distance
+            if self._had_target and limit is not None and not chosen.distance <= limit:
+                return  # re-acquisition asks for a closer match than verification does
             self._set_target(tid)  # (re-)acquisition by appearance
             self._vision_sources = True
             return

@@ -502,6 +502,25 @@ def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
     assert abs(target.y_m - 1.2) < 0.2
 
 
+@pytest.mark.parametrize(("limit", "reacquired"), [(None, True), (0.7, False), (0.8, True)])
+def test_reacquisition_can_ask_for_a_closer_match_than_verification(limit, reacquired):
+    """reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost target
+    is re-taken from that only when the limit allows it."""
+    trk = following_at_two(reacquire_max_distance=limit)
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
+    for k in range(1, 11):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    assert target.status == "lost"
+    for k in range(11, 15):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.5, 1.0)))
+        trk.add_verification(
+            verification(k * SCAN_NS, [(2.5, 1.0)], chosen=0, distances=[0.75], threshold=0.8)
+        )
+    assert (target.status == "tracking") == reacquired
+
+
 def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
     """look_while_lost: nearest to where the target was lost first; a person vision rejected
     look_rejections times is not looked at again; none while tracking or when switched off."""
