@@ -249,19 +249,20 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     rejected it (appearance distance above the verifier's threshold): the robot stops rather
     than follow someone vision says is not the target (0: never). Beyond the thesis, which
     always takes the nearest match."""
-    reject_min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.0
-    """Beyond the thesis, off by default: a rejection of a candidate nearer than this to the
-    robot counts for nothing (neither rollback nor reject_votes); an acceptance still counts.
-    So near, the camera sees too little of a person to say it is someone else: a target 0.5 m
-    away shows a third of its body, was judged 0.80-0.85 against 0.8 and dropped, then lost for
-    8-16 s (ristic_circles). At 0.7 m (76 closed-loop runs, docs/tracker.md): ristic_circles
-    tracked 1.00 in all 8 seeds (0.97) and RMSE 0.083 m (0.095), but in the cluttered office
-    the robot then kept following clutter and once a bystander near it (1.2 s in 8 runs)."""
-    near_guard_m: Annotated[float, msgspec.Meta(ge=0)] = 0.0
-    """With reject_min_range_m: a near rejection counts for nothing only while the target is
-    surely the one vision last accepted -- its track took a candidate on every scan since, and
-    no other track came within this distance of it. A target that was hidden, or passed
-    someone (or something) on the way, is judged as usual. 0: near rejections never count."""
+    reject_min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.7
+    """Beyond the thesis: a rejection of the target's candidate nearer than this to the robot
+    counts for nothing (neither rollback nor reject_votes) while near_guard_m holds; an
+    acceptance still counts. So near, the camera sees too little of a person to say it is
+    someone else: a target 0.5 m away shows a third of its body, was judged 0.80-0.85 against
+    0.8 and dropped, then lost for 8-16 s (ristic_circles). 0: every rejection counts."""
+    near_guard_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """... only while the target is surely the one vision last accepted: its track took a
+    candidate on every scan since, and no other track came within this distance of it. A
+    target that was hidden, or passed someone (or something) on the way, is judged as usual.
+    0: near rejections never count, whatever happened (in the cluttered office the robot then
+    followed clutter near it and once a bystander). 76 closed-loop runs (docs/tracker.md):
+    ristic_circles tracked 1.00 of the visible time in all 8 seeds (0.97 without), RMSE 0.084
+    m (0.095)."""
     split_pair_m: Annotated[float, msgspec.Meta(ge=0)] = 0.4
     """A two-leg candidate whose legs are farther apart than this may be one leg each of two
     people (the thesis pairs legs up to 500 mm apart; when one of the target's legs is hidden
