@@ -608,8 +608,6 @@ class Tracker:
             if c not in by_cand or tid == self.target_id:
                 by_cand[c] = tid
         matched = {tid: c for c, tid in by_cand.items()}
-        if s.near_guard_m > 0 and s.reject_min_range_m > 0 and self.target_id >= 0:
-            self._note_break()
         for tid in list(self.tracks):
             t = self.tracks[tid]
             if t.misses > s.max_misses or t.estimator.expired():
@@ -654,6 +652,9 @@ class Tracker:
         for t, seen in rest.learn:
             self._learn_velocity(t, rest.stamp, rest.pose, seen)
         if rest.scan is not None:
+            s = self.settings
+            if s.near_guard_m > 0 and s.reject_min_range_m > 0 and self.target_id in self.tracks:
+                self._note_break()  # this scan's index: before it moves on
             self._history[rest.stamp] = rest.scan
             while len(self._history) > self.settings.history_scans:
                 self._history.popitem(last=False)
