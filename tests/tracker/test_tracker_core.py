@@ -202,8 +202,38 @@ def test_deferred_resampling_and_draws_ahead_give_the_numbers_of_doing_them_at_o
     assert np.allclose(pf.particles[0:2], after[0:2] + v * 0.12, rtol=0, atol=1e-12)
 
 
+def test_mixed_velocity_model_keeps_a_pace_and_still_follows_a_turn():
+    """velocity_model: mixed (most particles keep their velocity, a share redraws it): on a
+    0.6 m/s walk it lags less than the thesis's random walk, and through a 90 deg turn it
+    follows better than constant velocity. Ten seeds, 3 cm measurement noise."""
+
+    def run(model: str, seed: int) -> tuple[float, float]:
+        pf = ParticleEstimator(
+            2.0, 0.0, ParticleSettings(velocity_model=model), np.random.default_rng(seed)
+        )
+        rng = np.random.default_rng(100 + seed)
+        pos, vel = np.array([2.0, 0.0]), np.array([0.0, 0.6])
+        straight, turn = [], []
+        for k in range(45):
+            if k == 35:
+                vel = np.array([0.6, 0.0])
+            pos = pos + vel * 0.12
+            pf.predict(0.12)
+            pf.update(pos + rng.normal(0, 0.03, 2))
+            e = float(np.hypot(*(pf.mean[:2] - pos)))
+            (straight if 10 <= k < 35 else turn if k >= 35 else []).append(e)
+        return float(np.sqrt(np.mean(np.square(straight)))), float(
+            np.sqrt(np.mean(np.square(turn)))
+        )
+
+    err = {m: np.mean([run(m, s) for s in range(10)], axis=0) for m in
+           ("random_walk", "constant_velocity", "mixed")}  # fmt: skip
+    assert err["mixed"][0] < 0.75 * err["random_walk"][0]  # measured 0.037 vs 0.063 m
+    assert err["mixed"][1] < 0.85 * err["constant_velocity"][1]  # 0.068 vs 0.091 m
+
+
 @pytest.mark.parametrize("resampler", ["systematic", "sorted_copy"])
-@pytest.mark.parametrize("velocity_model", ["random_walk", "constant_velocity"])
+@pytest.mark.parametrize("velocity_model", ["random_walk", "constant_velocity", "mixed"])
 def test_particle_batch_steps_match_the_per_track_steps(resampler, velocity_model):
     """motion_all / cost_all / update_all (ten people in one stack) give each track what its
     own ego_motion / predict / distance / update would, up to rounding."""

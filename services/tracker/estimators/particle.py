@@ -62,10 +62,16 @@ class ParticleSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     # thesis 4.5: sigma_d = 100 mm, sigma_A = 5 deg (used as exp(-e^2 / sigma^2), eq. 3-36)
     range_std_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
     bearing_std_deg: Annotated[float, msgspec.Meta(gt=0)] = 5.0
-    velocity_model: Literal["random_walk", "constant_velocity"] = "random_walk"
+    velocity_model: Literal["random_walk", "constant_velocity", "mixed"] = "random_walk"
     """random_walk: the thesis's eq. 3-30, v drawn afresh from N(0, sigma_v^2) every step.
     constant_velocity: v_k = v_{k-1} + N(0, (accel_std dT)^2), an alternative that keeps the
-    velocity from step to step (less lag, unbiased speed; not the thesis)."""
+    velocity from step to step (less lag, unbiased speed; not the thesis). mixed: each
+    particle keeps its velocity as constant_velocity does, except that a share
+    ``redraw_share`` of them, drawn afresh each step, redraw it as random_walk does -- two
+    motion models in one cloud (the particles of whichever fits survive the resampling): a
+    walker's steady pace and a sudden turn or stop."""
+    redraw_share: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.2
+    """mixed only: the probability that a particle redraws its velocity in a step."""
     accel_std_mps2: Annotated[float, msgspec.Meta(gt=0)] = 1.5
     """constant_velocity only: the acceleration noise; the first step draws N(0, sigma_v^2)."""
     resampler: Literal["systematic", "sorted_copy"] = "systematic"
@@ -235,6 +241,11 @@ class ParticleEstimator:
             self._normals(noise)
             noise *= s.accel_std_mps2 * dt_s
             v += noise
+            if s.velocity_model == "mixed":
+                redraw = self.rng.random(v.shape[1]) < s.redraw_share
+                k = int(redraw.sum())
+                if k:
+                    v[:, redraw] = self.rng.standard_normal((2, k)) * s.velocity_std_mps
 
     def _normals(self, out: np.ndarray) -> None:
         """Fill ``out`` (2, m) with the next standard normals of this rng (drawn ahead or now)."""
