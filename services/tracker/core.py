@@ -233,6 +233,9 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     laser_reacquire_m: Annotated[float, msgspec.Meta(ge=0)] = 0.7
     """Without vision only: a lost target is re-taken by the track nearest to where it was lost,
     within this distance (0: never without vision)."""
+    laser_reacquire_min_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """... and only a track walking at least this fast (its recent velocity): clutter where
+    the target vanished stays put (0: any track)."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
     """Consecutive verifications preferring another track before the target moves to it."""
     reacquire_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = None
@@ -865,10 +868,18 @@ class Tracker:
             best, best_d = -1, s.laser_reacquire_m
             for tid, ci in matched.items():
                 d = float(np.hypot(*(z[ci] - self._lost_at)))
-                if d <= best_d:
+                if d <= best_d and self._walking(tid, s.laser_reacquire_min_speed_mps):
                     best, best_d = tid, d
             if best >= 0:
                 self._set_target(best)
+
+    def _walking(self, tid: int, min_speed_mps: float) -> bool:
+        """Track ``tid`` moves at ``min_speed_mps`` or faster (recent velocity); any track
+        when ``min_speed_mps`` is 0."""
+        if min_speed_mps <= 0:
+            return True
+        t = self.tracks.get(tid)
+        return t is not None and float(np.hypot(*self._velocity(t, self._now[1]))) >= min_speed_mps
 
     def _take_model(self, pose: Pose | None) -> None:
         model, self._model = self._model, None

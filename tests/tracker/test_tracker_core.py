@@ -616,6 +616,24 @@ def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
     assert target.status == "tracking" and abs(target.y_m - 0.1) < 0.15
 
 
+def test_without_vision_only_a_walker_is_retaken_when_asked():
+    """laser_reacquire_min_speed_mps: where the target vanished, a still thing (clutter) is
+    not taken for it; a person walking there is, once the tracker has seen them move."""
+    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.25))
+    for k in range(12):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
+    assert target.status == "lost"
+    statuses = []
+    for k in range(12, 20):  # a still thing at (2.2, 0.1), a walker coming from (1.7, -0.3)
+        walker = (1.7 + 0.06 * (k - 12), -0.3 + 0.02 * (k - 12))  # 0.53 m/s
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.2, 0.1), walker))
+        statuses.append(target.status)
+    assert statuses[0] == "lost" and statuses[-1] == "tracking"
+    assert abs(target.x_m - walker[0]) < 0.15 and abs(target.y_m - walker[1]) < 0.15
+
+
 def test_same_seed_same_output():
     def run(seed):
         trk = Tracker(TrackerSettings(acquire="nearest", seed=seed))
