@@ -299,7 +299,10 @@ def test_nearest_expiry_after_max_unseen_s_and_the_seeds_immediate_rule():
 def test_nearest_with_the_seeds_rule_loses_the_target_at_the_first_miss():
     trk = Tracker(
         TrackerSettings(
-            estimator="nearest", estimator_settings={"max_unseen_s": 0.0}, acquire="nearest"
+            estimator="nearest",
+            estimator_settings={"max_unseen_s": 0.0},
+            acquire="nearest",
+            laser_reacquire_min_speed_mps=0.0,  # the person stands: re-taken all the same
         )
     )
     statuses = []

@@ -606,7 +606,8 @@ def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
 
 
 def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
-    trk = Tracker(TrackerSettings(acquire="nearest"))
+    # whoever is there, walking or not (laser_reacquire_min_speed_mps 0; default: walkers)
+    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.0))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -619,7 +620,7 @@ def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
 def test_without_vision_only_a_walker_is_retaken_when_asked():
     """laser_reacquire_min_speed_mps: where the target vanished, a still thing (clutter) is
     not taken for it; a person walking there is, once the tracker has seen them move."""
-    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.25))
+    trk = Tracker(TrackerSettings(acquire="nearest"))  # laser_reacquire_min_speed_mps 0.25
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
