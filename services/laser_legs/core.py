@@ -398,13 +398,8 @@ def pair_legs(
         chosen = _closest_first(k, sorted(pairs))
     else:
         raise ValueError(f"pairing must be one of {PAIRINGS}, not {pairing!r}")
-    used = [False] * k
-    for i, j in chosen:
-        used[i] = used[j] = True
-    groups: list[tuple[int, ...]] = list(chosen)
-    groups.extend((i,) for i in range(k) if not used[i])
-    groups.sort()
-    return groups
+    paired = {i for pair in chosen for i in pair}
+    return sorted([*chosen, *((i,) for i in range(k) if i not in paired)])
 
 
 def _closest_first(k: int, pairs: list[tuple[float, int, int]]) -> list[tuple[int, int]]:

@@ -579,16 +579,10 @@ class Tracker:
             scales = np.where(lone, s.one_leg_noise_scale, 1.0)
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
-            if scales is None:
-                update_all([t.estimator for t in updated], np.array(zs))
-            else:
-                update_all([t.estimator for t in updated], np.array(zs), scales)
-        elif scales is None:
-            for t, zi in zip(updated, zs, strict=True):
-                t.estimator.update(zi)
+            update_all([t.estimator for t in updated], np.array(zs), scales)
         else:
-            for t, zi, k in zip(updated, zs, scales, strict=True):
-                t.estimator.update(zi, float(k))
+            for i, (t, zi) in enumerate(zip(updated, zs, strict=True)):
+                t.estimator.update(zi, 1.0 if scales is None else float(scales[i]))
         learn: list[tuple[Track, int]] = []  # (track, seen before): velocities, in step_rest
         for tid in ids:
             t = self.tracks[tid]
@@ -628,7 +622,7 @@ class Tracker:
         if self.target_id < 0:
             self._acquire_by_laser(z, matched, vision=not any(f in _NO_VISION for f in flags))
         if self.target_id < 0 and self._had_target and s.look_while_lost and self.vision_alive:
-            self._choose_look(stamp, pose)
+            self._choose_look(stamp)
         elif self._look[0] >= 0 or self._look_rejected or self._look_done:
             self._forget_looks()
         if self.target_id >= 0 and self.target_id in matched:
@@ -776,7 +770,7 @@ class Tracker:
         self._look_rejected.clear()
         self._look_done.clear()
 
-    def _choose_look(self, stamp: int, pose: Pose | None) -> None:
+    def _choose_look(self, stamp: int) -> None:
         """look_while_lost: keep looking at the current track until vision judged it or
         look_dwell_s passed, then the next (settings)."""
         s = self.settings
@@ -808,8 +802,10 @@ class Tracker:
         origin = np.zeros(2) if self._lost_at is None else self._lost_at
 
         def rank(t: Track) -> tuple[bool, float]:
-            moving = float(np.hypot(*self._velocity(t, pose))) >= s.look_moving_mps
-            return (not moving, float(np.hypot(*(t.position - origin))))
+            return (
+                not self._walking(t.id, s.look_moving_mps),
+                float(np.hypot(*(t.position - origin))),
+            )
 
         best = min(fresh, key=rank)
         self._look = (best.id, stamp if best.id != tid else since)
@@ -983,7 +979,8 @@ class Tracker:
     def _judge_target(self, v: Verification, scan: _Scan) -> None:
         """Negative evidence: vision saw the target's candidate and said it is not the target.
         (While the target is lost: which tracks vision has rejected, for look_while_lost.)"""
-        if self.target_id < 0 and self._had_target and v.threshold is not None:
+        lost = self.target_id < 0 and self._had_target
+        if lost and self.settings.look_while_lost and v.threshold is not None:
             for c in v.candidates:
                 tid = scan.assoc.get(c.index, -1)
                 if tid >= 0 and c.in_view and c.distance is not None and c.distance > v.threshold:

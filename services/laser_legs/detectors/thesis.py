@@ -149,13 +149,15 @@ class ClusterLegDetector:
 
     def legs(self, scan: LaserScan, prediction: Prediction = None) -> LegSet:
         """The accepted legs (criteria 1-3) of one scan, before pairing."""
-        return self._legs(scan, prediction, False)[0]
+        legs = self._legs(scan, False)[0]
+        if prediction is None:
+            return legs
+        return legs.select(gate(legs, prediction, self.settings.gate_m))  # criterion 3
 
-    def _legs(
-        self, scan: LaserScan, prediction: Prediction, partners: bool
-    ) -> tuple[LegSet, list[Leg | None]]:
-        """The accepted legs (criteria 1-3) of one scan, before pairing, and (``partners``)
-        for each the sliver of a leg it half hides (step 8), or None.
+    def _legs(self, scan: LaserScan, partners: bool) -> tuple[LegSet, list[Leg | None]]:
+        """The legs passing criteria 1-2 of one scan, before criterion 3 (the caller's) and
+        pairing, and (``partners``) for each the sliver of a leg it half hides (step 8), or
+        None.
 
         One fused pass with few numpy calls (each costs ~1 us whatever the array size, which
         dominates at 720 beams): the full-scan work is validity, clipping and the jump cuts;
@@ -241,14 +243,7 @@ class ClusterLegDetector:
             r = np.hypot(x, y)
             push = s.leg_centre_factor * w / np.maximum(r, 1e-9)
             x, y = x * (1 + push), y * (1 + push)
-        legs = LegSet(x, y, st, en, w)
-        # criterion 3, eq. 4-7: near the tracker's prediction
-        if prediction is not None:
-            near = gate(legs, prediction, s.gate_m)
-            legs = legs.select(near)
-            if hidden:
-                hidden = [h for h, ok in zip(hidden, near.tolist(), strict=True) if ok]
-        return legs, hidden
+        return LegSet(x, y, st, en, w), hidden
 
     def _hidden_partners(self, k, keep, st, en, cnt, ra, rb, w, sums) -> list[Leg | None]:
         """Step 8: for each kept run ``k[i]``, the sliver of a leg it half hides, or None.
@@ -309,17 +304,21 @@ class ClusterLegDetector:
 
     def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
         s = self.settings
-        if prediction is not None and s.outside_gate == "keep_apart":
-            legs, hidden = self._legs(scan, None, s.occluded_partner)
-            near = gate(legs, prediction, s.gate_m)
-            out = []
-            for part in (near, ~near):
-                if part.any():
-                    mine = hidden and [h for h, ok in zip(hidden, part.tolist(), strict=True) if ok]
-                    out += self._paired(scan, legs.select(part), mine).candidates
-            return candidates_message(scan, self.name, out)
-        legs, hidden = self._legs(scan, prediction, s.occluded_partner)
-        return self._paired(scan, legs, hidden)
+        legs, hidden = self._legs(scan, s.occluded_partner)
+        if prediction is None:
+            return self._paired(scan, legs, hidden)
+        # criterion 3, eq. 4-7: near the tracker's prediction (keep_apart: the rest apart)
+        near = gate(legs, prediction, s.gate_m)
+        parts = [self._part(scan, legs, hidden, near)]
+        if s.outside_gate == "keep_apart":
+            parts.append(self._part(scan, legs, hidden, ~near))
+            return candidates_message(scan, self.name, [c for m in parts for c in m.candidates])
+        return parts[0]
+
+    def _part(self, scan: LaserScan, legs: LegSet, hidden: list[Leg | None], keep: np.ndarray):
+        """The persons among the legs ``keep`` selects, paired among themselves."""
+        mine = [h for h, ok in zip(hidden, keep.tolist(), strict=True) if ok] if hidden else []
+        return self._paired(scan, legs.select(keep), mine)
 
     def _paired(self, scan: LaserScan, legs, hidden: list[Leg | None]) -> PersonCandidates:
         s = self.settings

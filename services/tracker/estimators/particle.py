@@ -375,9 +375,8 @@ class ParticleEstimator:
         """:meth:`update` of estimator i with ``points[i]`` (T, 2) and ``noise_scales[i]``
         (default 1), for all at once."""
         if not cls._batchable(estimators):
-            scales = np.ones(len(estimators)) if noise_scales is None else noise_scales
-            for e, z, k in zip(estimators, points, scales, strict=True):
-                e.update(z, float(k))
+            for i, (e, z) in enumerate(zip(estimators, points, strict=True)):
+                e.update(z, 1.0 if noise_scales is None else float(noise_scales[i]))
             return
         e0 = estimators[0]
         cls.settle_all(estimators)
@@ -391,15 +390,11 @@ class ParticleEstimator:
         da = np.arctan2(yr, xr)
         dd = np.sqrt(xr * xr + yr * yr)
         dd -= np.hypot(zx, zy)
+        k = 1.0 if noise_scales is None else (1.0 / np.square(noise_scales))[:, None]
         dd *= dd
+        dd *= -e0._inv_sd2 * k
         da *= da
-        if noise_scales is None:
-            dd *= -e0._inv_sd2
-            dd -= da * e0._inv_sa2
-        else:
-            k = (1.0 / np.square(noise_scales))[:, None]
-            dd *= -e0._inv_sd2 * k
-            dd -= da * (e0._inv_sa2 * k)
+        dd -= da * (e0._inv_sa2 * k)
         dd -= dd.max(axis=1, keepdims=True)
         w = np.exp(dd, out=dd)
         w /= w.sum(axis=1, keepdims=True)
