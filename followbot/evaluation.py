@@ -78,7 +78,8 @@ Verification accuracy (``verification_*``)
 ``reacquire_s``
     An occlusion episode is a maximal run of scans with the target not visible to the laser,
     at least ``min_occlusion_s`` long (default 0.2 s, so a one-scan dropout at 8-10 Hz is not
-    an occlusion; first hidden stamp to first visible-again stamp), with the target tracked
+    an occlusion; first hidden stamp to first visible-again stamp; a glimpse shorter than that,
+    hidden again or at the end of the run, is part of the occlusion), with the target tracked
     (visible, e_k <= 0.5 m) at some time before it and visible after it: an occlusion before
     the target was first acquired is not one it can be *re*-acquired after (the time to the
     first acquisition is ``acquired_s``). Its re-acquisition time is from the stamp of the
@@ -381,8 +382,16 @@ def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str
             k += 1
             continue
         start = k
-        while k < n and not vis[k]:
-            k += 1
+        while True:  # to the end of the occlusion: a glimpse shorter than min_occlusion_s
+            while k < n and not vis[k]:  # (hidden again after it, or the run ends) is part
+                k += 1  # of it, as a dropout shorter than that is no occlusion
+            m = k
+            while m < n and vis[m]:
+                m += 1
+            end_ns = records[m].stamp_ns if m < n else records[-1].stamp_ns
+            if k == n or (end_ns - records[k].stamp_ns) / _NS >= s.min_occlusion_s:
+                break
+            k = m
         if not seen or k == n:  # never seen before, or never seen again: no episode
             continue
         if (records[k].stamp_ns - records[start].stamp_ns) / _NS < s.min_occlusion_s:
@@ -937,7 +946,8 @@ def _definitions() -> list[str]:
         "on another person.",
         "- `follow_distance_share`: time with the true distance in [1.0, 2.0] m ÷ time tracked.",
         "- `reacquire_s`: mean time from the target reappearing to the laser after an occlusion "
-        "to being tracked within 0.5 m again.",
+        "(hidden ≥ 0.2 s; a glimpse shorter than that is part of it) to being tracked within "
+        "0.5 m again.",
         "- CLEAR-MOT (`mota`, `motp_m`, `misses`, `false_positives`, `id_switches`): truth "
         "people visible to the laser vs `tracking/people`, 0.75 m threshold, previous matches "
         "kept, the rest by the Hungarian method.",

@@ -309,6 +309,23 @@ def test_never_reacquired_and_dropouts_and_edges():
     assert m0["reacquire_s_episodes"] == [pytest.approx(0.0), None]
 
 
+def test_a_glimpse_shorter_than_min_occlusion_is_part_of_the_occlusion():
+    # hidden 0.4 s, seen for one scan (0.1 s), hidden 0.3 s, then seen: one occlusion whose
+    # re-acquisition counts from the end of the second gap (the glimpse was too short to take)
+    vis = "vvv" + "...." + "v" + "..." + "vvvv"
+    trk = "yyy" + "...." + "." + "..." + ".yyy"
+    m = compute_metrics(_occlusion_run(vis, trk))
+    assert m["occlusions"] == 1
+    assert m["reacquire_s_episodes"] == [pytest.approx(0.1)]
+    # a glimpse at the very end of the run is no reappearance: no episode, no failure
+    m_end = compute_metrics(_occlusion_run("vvv" + "...." + "v", "yyy" + "....."))
+    assert m_end["occlusions"] == 0
+    assert m_end["reacquire_failures"] == 0
+    # a glimpse of two scans (0.2 s) is a reappearance: never re-acquired is a failure
+    m_two = compute_metrics(_occlusion_run("vvv" + "...." + "vv" + "...", "yyy" + "." * 9))
+    assert m_two["reacquire_s_episodes"] == [None]
+
+
 # --------------------------------------------------------------------------- CLEAR-MOT
 
 
