@@ -197,6 +197,11 @@ class RobotSpec(_Spec):
     max_turn_accel_deg_s2: Annotated[float, msgspec.Meta(gt=0.0, le=10_000.0)] = 300.0
     wheel_base_m: Annotated[float, msgspec.Meta(gt=0.05, le=2.0)] = 0.33
     radius_m: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
+    people_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] | None = 0.3
+    """People give way to the robot: a person's body centre keeps at least radius_m + this
+    from the robot's centre, stepping aside as they pass (simulation.py, "Giving way").
+    Scripts are written in the world frame, and a following robot can stop in their path;
+    real people walk round it. null: they walk through it (as before this setting)."""
     pan_limit_deg: Annotated[float, msgspec.Meta(ge=0.0, le=180.0)] = 100.0
     pan_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=2000.0)] = 90.0
     cmd_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.5

@@ -16,6 +16,17 @@ next sensor instant (laser, camera and odometry each at their own rate; truth wi
 and returns the messages due then, in a fixed order. The same scenario, seed and sequence of
 commands give a byte-identical message stream.
 
+Giving way: scripts are written in the world frame, so a robot that follows can stop right in
+a person's scripted path. Each person whose scripted body centre comes within
+``robot.radius_m + robot.people_clearance_m`` (c) of the robot's centre steps aside. Seen along
+their direction of walking, a walker's sideways offset from the robot is raised to at least
+c (1 + cos(pi a / L)) / 2 while the offset a along it is within L = 2.5 c, on the side they
+were already on (left when dead ahead): a smooth swerve that keeps outside the circle of
+radius c and rejoins the script behind the robot. A standing person is pushed straight away
+from the robot to distance c. Body and legs move together; the velocity stays the scripted one.
+It is a pure function of the scripted state and the robot's pose (``give_way``), so the
+state at time t still does not depend on how time was chunked.
+
 Ground truth frames: world positions are in the scenario's world frame; ``robot_*`` fields are
 in the robot's base frame at that instant, q = R(-yaw) (p - r). ``robot_vx/vy`` is the
 person's ground velocity expressed in the base frame, R(-yaw) p' (what an ego-motion
@@ -44,6 +55,48 @@ _NS = 1_000_000_000
 
 def _period_ns(rate_hz: float) -> int:
     return max(1, round(_NS / rate_hz))
+
+
+GIVE_WAY_REACH = 2.5
+"""A walker starts stepping aside this many clearances before passing the robot."""
+
+
+def give_way(
+    state: PersonState, robot_pose: tuple[float, float, float], clearance_m: float
+) -> PersonState:
+    """``state`` moved sideways so the body centre stays at least ``clearance_m`` (c) from the
+    robot's centre (module doc, "Giving way"); the same object when it need not move."""
+    centre = np.array(robot_pose[:2], dtype=float)
+    d = state.position - centre
+    speed = math.hypot(state.velocity[0], state.velocity[1])
+    if speed > 1e-3:
+        u = state.velocity / speed
+        n = np.array([-u[1], u[0]])  # left of the direction of walking
+        along, side = float(u @ d), float(n @ d)
+        reach = GIVE_WAY_REACH * clearance_m
+        if abs(along) >= reach:
+            return state
+        # a raised-cosine bump c (1 + cos(pi a / reach)) / 2 lies outside the circle of radius
+        # c for reach >= 2.22 c, and turns the walker aside smoothly (at most pi c / (2 reach)
+        # sideways per metre walked)
+        bump = 0.5 * clearance_m * (1.0 + math.cos(math.pi * along / reach))
+        need = max(bump, math.sqrt(max(clearance_m**2 - along**2, 0.0)))
+        if abs(side) >= need:
+            return state
+        if side < 0.0:
+            n = -n
+        new = centre + along * u + need * n
+    else:
+        dist = math.hypot(d[0], d[1])
+        if dist >= clearance_m:
+            return state
+        if dist > 1e-9:
+            new = centre + d * (clearance_m / dist)
+        else:  # standing on the robot's centre: step to its left
+            th = robot_pose[2]
+            new = centre + clearance_m * np.array([-math.sin(th), math.cos(th)])
+    shift = new - state.position
+    return PersonState(new, state.velocity, state.heading_rad, state.legs + shift)
 
 
 class Simulation:
@@ -148,7 +201,12 @@ class Simulation:
     def people_states(self) -> list[PersonState]:
         if self._states_at != self.t_ns:
             t = self.t_s
-            self._states = [p.state(t) for p in self.people]
+            states = [p.state(t) for p in self.people]
+            c = self.scenario.robot.people_clearance_m
+            if c is not None:
+                r = self.scenario.robot.radius_m + c
+                states = [give_way(s, self.robot.pose, r) for s in states]
+            self._states = states
             self._states_at = self.t_ns
         return self._states
 

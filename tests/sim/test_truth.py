@@ -43,3 +43,47 @@ def test_occlusion_scenario_hides_the_target_from_the_laser():
             if type(msg).__name__ == "GroundTruth":
                 seen.append(msg.people[0].visible_laser)
     assert any(seen) and not all(seen)
+
+
+def _walk_through_robot(clearance):
+    robot = {"start": [0.0, 0.0]} if clearance == "default" else {"people_clearance_m": clearance}
+    sim = Simulation(
+        scenario(
+            robot=robot,
+            people=[
+                {"id": 1, "start": [2.0, 0.05], "heading_deg": 180.0,
+                 "path": [{"kind": "walk", "to": [-2.0, 0.05]}]},
+                standing(2, 0.1, 0.0),  # standing on the robot's centre, almost
+            ],
+        )
+    )
+    track, stood = [], []
+    while sim.t_s < 7.5:
+        sim.step(20_000_000)
+        states = sim.people_states()
+        track.append(states[0])
+        stood.append(states[1].position.copy())
+    return sim, track, stood
+
+
+def test_people_give_way_to_the_robot_and_rejoin_their_script():
+    sim, track, stood = _walk_through_robot("default")
+    c = sim.scenario.robot.radius_m + sim.scenario.robot.people_clearance_m
+    pos = np.array([s.position for s in track])
+    dist = np.hypot(pos[:, 0], pos[:, 1])
+    assert dist.min() >= c - 1e-9  # never inside the clearance
+    assert pos[:, 1].max() == pytest.approx(c, abs=0.01)  # round it on its own (left) side
+    assert (pos[:, 1] > 0.05 - 1e-9).all()  # never crosses to the other side
+    step = np.hypot(*np.diff(pos, axis=0).T)
+    assert step.max() < 0.6 * 0.02 * 1.3  # no jump: a smooth swerve (<= 0.63 m sideways per m)
+    assert pos[-1] == pytest.approx([-2.0, 0.05], abs=1e-9)  # back on the script
+    for s in track:  # the legs move with the body
+        assert s.legs.mean(axis=0) == pytest.approx(s.position, abs=0.2)
+    assert all(np.hypot(*p) == pytest.approx(c) for p in stood)  # pushed out radially
+
+
+def test_people_walk_through_the_robot_when_giving_way_is_off():
+    _, track, stood = _walk_through_robot(None)
+    pos = np.array([s.position for s in track])
+    assert np.hypot(pos[:, 0], pos[:, 1]).min() == pytest.approx(0.05, abs=0.02)
+    assert stood[0] == pytest.approx([0.1, 0.0])
