@@ -262,6 +262,11 @@ class Scenario(_Spec):
     laser: LaserSpec = msgspec.field(default_factory=LaserSpec)
     camera: CameraSpec = msgspec.field(default_factory=CameraSpec)
     people: Annotated[list[PersonSpec], msgspec.Meta(max_length=256)] = []
+    people_spacing_m: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] | None = 0.45
+    """People give way to each other: two body centres stay about this far apart at least
+    (a shoulder width: the default figure's 0.44 m), each stepping aside half the way
+    (simulation.py, "Giving way"). Scripts crossing or standing in one spot no longer put
+    two people in one place. null: they walk through each other (as before this setting)."""
     lighting: list[LightingKey] = []
 
     def __post_init__(self) -> None:

@@ -23,7 +23,9 @@ their direction of walking, a walker's sideways offset from the robot is raised 
 c (1 + cos(pi a / L)) / 2 while the offset a along it is within L = 2.5 c, on the side they
 were already on (left when dead ahead): a smooth swerve that keeps outside the circle of
 radius c and rejoins the script behind the robot. A standing person is pushed straight away
-from the robot to distance c. Body and legs move together; the velocity stays the scripted one.
+from the robot to distance c. People give way to each other the same way first
+(``people_spacing_m`` as c, relative motion for the direction of walking, each stepping half
+the way aside), then to the robot. Body and legs move together; the velocity stays the scripted one.
 It is a pure function of the scripted state and the robot's pose (``give_way``), so the
 state at time t still does not depend on how time was chunked.
 
@@ -61,42 +63,71 @@ GIVE_WAY_REACH = 2.5
 """A walker starts stepping aside this many clearances before passing the robot."""
 
 
+def _swerve(d: np.ndarray, w: np.ndarray, clearance_m: float) -> np.ndarray | None:
+    """Sideways step that moves offset ``d`` (from what is passed) out to the swerve curve for
+    relative velocity ``w`` (module doc, "Giving way"); None when no step is needed."""
+    speed = math.hypot(w[0], w[1])
+    if speed > 1e-3:
+        u = w / speed
+        n = np.array([-u[1], u[0]])  # left of the direction of relative motion
+        along, side = float(u @ d), float(n @ d)
+        reach = GIVE_WAY_REACH * clearance_m
+        if abs(along) >= reach:
+            return None
+        # a raised-cosine bump c (1 + cos(pi a / reach)) / 2 lies outside the circle of radius
+        # c for reach >= 2.22 c, and turns a walker aside smoothly (at most pi c / (2 reach)
+        # sideways per metre passed)
+        bump = 0.5 * clearance_m * (1.0 + math.cos(math.pi * along / reach))
+        need = max(bump, math.sqrt(max(clearance_m**2 - along**2, 0.0)))
+        if abs(side) >= need:
+            return None
+        return (need - abs(side)) * (n if side >= 0.0 else -n)
+    dist = math.hypot(d[0], d[1])
+    if dist >= clearance_m:
+        return None
+    if dist > 1e-9:
+        return d * ((clearance_m - dist) / dist)
+    return np.array([0.0, clearance_m])  # on the same spot: apart along y (either way will do)
+
+
+def _moved(state: PersonState, shift: np.ndarray) -> PersonState:
+    return PersonState(state.position + shift, state.velocity, state.heading_rad, state.legs + shift)
+
+
 def give_way(
     state: PersonState, robot_pose: tuple[float, float, float], clearance_m: float
 ) -> PersonState:
     """``state`` moved sideways so the body centre stays at least ``clearance_m`` (c) from the
     robot's centre (module doc, "Giving way"); the same object when it need not move."""
-    centre = np.array(robot_pose[:2], dtype=float)
-    d = state.position - centre
-    speed = math.hypot(state.velocity[0], state.velocity[1])
-    if speed > 1e-3:
-        u = state.velocity / speed
-        n = np.array([-u[1], u[0]])  # left of the direction of walking
-        along, side = float(u @ d), float(n @ d)
-        reach = GIVE_WAY_REACH * clearance_m
-        if abs(along) >= reach:
-            return state
-        # a raised-cosine bump c (1 + cos(pi a / reach)) / 2 lies outside the circle of radius
-        # c for reach >= 2.22 c, and turns the walker aside smoothly (at most pi c / (2 reach)
-        # sideways per metre walked)
-        bump = 0.5 * clearance_m * (1.0 + math.cos(math.pi * along / reach))
-        need = max(bump, math.sqrt(max(clearance_m**2 - along**2, 0.0)))
-        if abs(side) >= need:
-            return state
-        if side < 0.0:
-            n = -n
-        new = centre + along * u + need * n
-    else:
-        dist = math.hypot(d[0], d[1])
-        if dist >= clearance_m:
-            return state
-        if dist > 1e-9:
-            new = centre + d * (clearance_m / dist)
-        else:  # standing on the robot's centre: step to its left
-            th = robot_pose[2]
-            new = centre + clearance_m * np.array([-math.sin(th), math.cos(th)])
-    shift = new - state.position
-    return PersonState(new, state.velocity, state.heading_rad, state.legs + shift)
+    d = state.position - np.array(robot_pose[:2], dtype=float)
+    if math.hypot(state.velocity[0], state.velocity[1]) <= 1e-3 and math.hypot(*d) <= 1e-9:
+        th = robot_pose[2]  # standing on the robot's centre: step to its left
+        return _moved(state, clearance_m * np.array([-math.sin(th), math.cos(th)]))
+    shift = _swerve(d, state.velocity, clearance_m)
+    return state if shift is None else _moved(state, shift)
+
+
+def give_way_to_each_other(states: list[PersonState], spacing_m: float) -> list[PersonState]:
+    """Every pair closer than the swerve curve of ``spacing_m`` steps apart, each half the
+    way, sideways to their relative motion (module doc, "Giving way"); one pass over the
+    pairs on the scripted positions, so a crowd of three in one spot may stay a little
+    closer than ``spacing_m``."""
+    n = len(states)
+    shifts = [np.zeros(2) for _ in range(n)]
+    moved = False
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = states[i].position - states[j].position
+            if abs(d[0]) >= GIVE_WAY_REACH * spacing_m or abs(d[1]) >= GIVE_WAY_REACH * spacing_m:
+                continue
+            step = _swerve(d, states[i].velocity - states[j].velocity, spacing_m)
+            if step is not None:
+                shifts[i] += 0.5 * step
+                shifts[j] -= 0.5 * step
+                moved = True
+    if not moved:
+        return states
+    return [s if not sh.any() else _moved(s, sh) for s, sh in zip(states, shifts, strict=True)]
 
 
 class Simulation:
@@ -202,6 +233,8 @@ class Simulation:
         if self._states_at != self.t_ns:
             t = self.t_s
             states = [p.state(t) for p in self.people]
+            if self.scenario.people_spacing_m is not None:
+                states = give_way_to_each_other(states, self.scenario.people_spacing_m)
             c = self.scenario.robot.people_clearance_m
             if c is not None:
                 r = self.scenario.robot.radius_m + c

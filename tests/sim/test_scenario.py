@@ -122,8 +122,12 @@ def _clearance(points: np.ndarray, segments: np.ndarray, circles: np.ndarray) ->
 def test_builtin_people_never_walk_through_walls_or_obstacles(name):
     sim = Simulation(load_builtin(name))
     times = np.arange(0.0, sim.scenario.duration_s, 0.2)
-    for person in sim.people:
-        legs = np.concatenate([person.state(float(t)).legs for t in times])
+    states = []  # as the simulation places them: giving way to each other and the (still) robot
+    for t in times:
+        sim.advance_to(int(round(t * 1e9)))
+        states.append(sim.people_states())
+    for k, person in enumerate(sim.people):
+        legs = np.concatenate([s[k].legs for s in states])
         gap = _clearance(legs, sim.world.segments, sim.world.circles) - person.leg_radius_m
         worst = int(np.argmin(gap))
         assert gap[worst] > 0.0, (

@@ -50,6 +50,7 @@ def _walk_through_robot(clearance):
     sim = Simulation(
         scenario(
             robot=robot,
+            people_spacing_m=None,  # the robot alone here
             people=[
                 {"id": 1, "start": [2.0, 0.05], "heading_deg": 180.0,
                  "path": [{"kind": "walk", "to": [-2.0, 0.05]}]},
@@ -87,3 +88,46 @@ def test_people_walk_through_the_robot_when_giving_way_is_off():
     pos = np.array([s.position for s in track])
     assert np.hypot(pos[:, 0], pos[:, 1]).min() == pytest.approx(0.05, abs=0.02)
     assert stood[0] == pytest.approx([0.1, 0.0])
+
+
+def _crossing(spacing):
+    extra = {} if spacing == "default" else {"people_spacing_m": spacing}
+    sim = Simulation(
+        scenario(
+            robot={"start": [-5.0, 5.0]},  # out of the way
+            **extra,
+            people=[
+                {"id": 1, "start": [2.0, 0.0], "heading_deg": 180.0,
+                 "path": [{"kind": "walk", "to": [-2.0, 0.0]}]},
+                {"id": 2, "start": [-2.0, 0.1], "heading_deg": 0.0,
+                 "path": [{"kind": "walk", "to": [2.0, 0.1]}]},
+                standing(3, 0.0, -2.0),
+                standing(4, 0.0, -2.0),  # scripted on the same spot as 3
+            ],
+        )
+    )
+    out = []
+    while sim.t_s < 7.5:
+        sim.step(20_000_000)
+        out.append([s.position.copy() for s in sim.people_states()])
+    return sim, np.array(out)
+
+
+def test_people_give_way_to_each_other():
+    sim, pos = _crossing("default")
+    c = sim.scenario.people_spacing_m
+    gap = np.hypot(*(pos[:, 0] - pos[:, 1]).T)
+    assert gap.min() >= c - 1e-9  # the walkers pass at a shoulder width at least
+    step = np.hypot(*np.diff(pos[:, :2], axis=0).transpose(2, 0, 1))
+    assert step.max() < 0.6 * 0.02 * 1.3  # smoothly
+    assert pos[-1, 0] == pytest.approx([-2.0, 0.0])  # and each back on the script
+    assert pos[-1, 1] == pytest.approx([2.0, 0.1])
+    assert np.hypot(*(pos[:, 2] - pos[:, 3]).T).min() == pytest.approx(c)  # one spot: apart
+    # each steps half the way: the middle of the pair stays where the scripts put it
+    assert (pos[:, 2] + pos[:, 3]) / 2 == pytest.approx(np.tile([0.0, -2.0], (len(pos), 1)))
+
+
+def test_people_walk_through_each_other_when_spacing_is_off():
+    _, pos = _crossing(None)
+    assert np.hypot(*(pos[:, 0] - pos[:, 1]).T).min() == pytest.approx(0.1, abs=0.02)
+    assert (pos[:, 2] == pos[:, 3]).all()
