@@ -237,6 +237,9 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """... and only a track walking at least this fast (its recent velocity): clutter where
     the target vanished stays put (0: any track). Beyond the thesis; 76 closed-loop runs
     (docs/tracker.md): the cluttered office's 1.2 s on wrong people went to 0."""
+    laser_reacquire_max_s: Annotated[float, msgspec.Meta(ge=0)] | None = None
+    """... and only this long after the loss (None: any time). A walker is 0.7 m on in under
+    3 s; later, whoever passes where the target was lost is someone else."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
     """Consecutive verifications preferring another track before the target moves to it."""
     reacquire_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = None
@@ -400,6 +403,7 @@ class Tracker:
         self._next_id = 1
         self._had_target = False
         self._lost_at: np.ndarray | None = None  # last target position, carried by ego-motion
+        self._lost_ns = 0  # scan stamp at which the target was lost
         self._last_stamp: int | None = None
         self._last_pose: Pose | None = None
         self._index = 0
@@ -845,6 +849,7 @@ class Tracker:
 
     def _lose_target(self, track: Track) -> None:
         self._lost_at = np.array(track.position, dtype=float)
+        self._lost_ns = self._now[0]
         self.target_id = -1
         self._switch = (-1, 0)
 
@@ -861,7 +866,17 @@ class Tracker:
                         self._set_target(tid)
                         return
         lost_at = self._lost_at
-        if self._had_target and not vision and lost_at is not None and s.laser_reacquire_m > 0:
+        recent = (
+            s.laser_reacquire_max_s is None
+            or self._now[0] - self._lost_ns <= s.laser_reacquire_max_s * _NS
+        )
+        if (
+            self._had_target
+            and not vision
+            and lost_at is not None
+            and s.laser_reacquire_m > 0
+            and recent
+        ):
             best, best_d = -1, s.laser_reacquire_m
             for tid, ci in matched.items():
                 d = float(np.hypot(*(z[ci] - self._lost_at)))

@@ -635,6 +635,27 @@ def test_without_vision_only_a_walker_is_retaken_when_asked():
     assert abs(target.x_m - walker[0]) < 0.15 and abs(target.y_m - walker[1]) < 0.15
 
 
+@pytest.mark.parametrize("max_s, retaken", [(None, True), (3.0, True), (1.0, False)])
+def test_without_vision_a_lost_target_is_retaken_only_soon_after_the_loss(max_s, retaken):
+    """laser_reacquire_max_s: 2.5 s after the loss, someone passing where the target was lost
+    is taken for it only when the window is longer than that."""
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest", laser_reacquire_min_speed_mps=0.0, laser_reacquire_max_s=max_s
+        )
+    )
+    for k in range(12):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
+    assert target.status == "lost"  # lost at k = 11 (more than 8 misses)
+    for k in range(12, 31):  # nobody there for 19 more scans
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    still_robot(trk, 31 * SCAN_NS)
+    target, _ = trk.step(cands(31 * SCAN_NS, (2.1, 0.1)))
+    assert (target.status == "tracking") is retaken
+
+
 def test_same_seed_same_output():
     def run(seed):
         trk = Tracker(TrackerSettings(acquire="nearest", seed=seed))
