@@ -91,7 +91,9 @@ def _swerve(d: np.ndarray, w: np.ndarray, clearance_m: float) -> np.ndarray | No
 
 
 def _moved(state: PersonState, shift: np.ndarray) -> PersonState:
-    return PersonState(state.position + shift, state.velocity, state.heading_rad, state.legs + shift)
+    return PersonState(
+        state.position + shift, state.velocity, state.heading_rad, state.legs + shift
+    )
 
 
 def give_way(

@@ -124,7 +124,7 @@ def test_builtin_people_never_walk_through_walls_or_obstacles(name):
     times = np.arange(0.0, sim.scenario.duration_s, 0.2)
     states = []  # as the simulation places them: giving way to each other and the (still) robot
     for t in times:
-        sim.advance_to(int(round(t * 1e9)))
+        sim.advance_to(round(t * 1e9))
         states.append(sim.people_states())
     for k, person in enumerate(sim.people):
         legs = np.concatenate([s[k].legs for s in states])

@@ -52,8 +52,12 @@ def _walk_through_robot(clearance):
             robot=robot,
             people_spacing_m=None,  # the robot alone here
             people=[
-                {"id": 1, "start": [2.0, 0.05], "heading_deg": 180.0,
-                 "path": [{"kind": "walk", "to": [-2.0, 0.05]}]},
+                {
+                    "id": 1,
+                    "start": [2.0, 0.05],
+                    "heading_deg": 180.0,
+                    "path": [{"kind": "walk", "to": [-2.0, 0.05]}],
+                },
                 standing(2, 0.1, 0.0),  # standing on the robot's centre, almost
             ],
         )
@@ -97,10 +101,18 @@ def _crossing(spacing):
             robot={"start": [-5.0, 5.0]},  # out of the way
             **extra,
             people=[
-                {"id": 1, "start": [2.0, 0.0], "heading_deg": 180.0,
-                 "path": [{"kind": "walk", "to": [-2.0, 0.0]}]},
-                {"id": 2, "start": [-2.0, 0.1], "heading_deg": 0.0,
-                 "path": [{"kind": "walk", "to": [2.0, 0.1]}]},
+                {
+                    "id": 1,
+                    "start": [2.0, 0.0],
+                    "heading_deg": 180.0,
+                    "path": [{"kind": "walk", "to": [-2.0, 0.0]}],
+                },
+                {
+                    "id": 2,
+                    "start": [-2.0, 0.1],
+                    "heading_deg": 0.0,
+                    "path": [{"kind": "walk", "to": [2.0, 0.1]}],
+                },
                 standing(3, 0.0, -2.0),
                 standing(4, 0.0, -2.0),  # scripted on the same spot as 3
             ],
