@@ -285,11 +285,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
-    repair_split: Literal["any", "rollback"] = "any"
-    """While the target coasts, vision choosing a track within model_match_m of it moves the
-    target there at once (no switch_votes): after a rollback on a false rejection the real
-    target is the track split off. "any": whatever track vision chose; "rollback": only the
-    track a rollback split off the target (a passer-by's own track must win switch_votes)."""
     rollback_max_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """Farthest back (scan time before the rejected scan) a rollback goes."""
     rollback_jump_m: Annotated[float, msgspec.Meta(ge=0)] = 0.15
@@ -426,7 +421,6 @@ class Tracker:
         self.verifications_unmatched = 0
         self.target_switches = 0
         self.rollbacks = 0  # target tracks split by a rejecting verification
-        self._split_from: dict[int, int] = {}  # track split off by a rollback -> target id
         self.rejections_near = 0  # rejections not counted: the candidate too near the camera
         self._confirmed_index = -1  # last scan whose verification accepted the target's candidate
         # scans at which the target missed or had another track within near_guard_m
@@ -463,7 +457,6 @@ class Tracker:
         self._had_target = False
         self._lost_at = None
         self._switch = (-1, 0)
-        self._split_from.clear()
         self._breaks.clear()
         self._forget_looks()
 
@@ -995,8 +988,6 @@ class Tracker:
         target = self.tracks.get(self.target_id)
         if target is None or target.misses == 0:
             return False
-        if self.settings.repair_split == "rollback" and self._split_from.get(tid) != target.id:
-            return False
         d = float(np.hypot(*(self.tracks[tid].position - target.position)))
         return d <= self.settings.model_match_m
 
@@ -1074,9 +1065,6 @@ class Tracker:
         other.hits, other.misses = max(track.hits, s.confirm_hits), track.misses
         other.last_seen_ns = track.last_seen_ns
         self.tracks[other.id] = other
-        self._split_from[other.id] = tid
-        for gone in [k for k in self._split_from if k not in self.tracks]:
-            del self._split_from[gone]
         for st in self._history.values():  # scans j.. : those candidates were the other's
             if st.index >= scan_j.index:
                 st.assoc = {c: other.id if t == tid else t for c, t in st.assoc.items()}
