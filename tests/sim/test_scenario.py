@@ -36,6 +36,7 @@ def test_builtin_library_is_there():
         "ristic_wall_corridor",
         "ristic_circles",
         "crowd_ten",
+        "occlusion_pillar",
     ):
         assert expected in names
 

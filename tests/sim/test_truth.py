@@ -35,6 +35,22 @@ def test_truth_frames_are_consistent():
     assert [p.is_target for p in truth.people] == [True, False]
 
 
+def test_occlusion_pillar_hides_the_target_twice_for_about_two_seconds():
+    sim = Simulation(load_builtin("occlusion_pillar"))  # no controller: the robot stands
+    hidden, start = [], None
+    while sim.t_s < sim.scenario.duration_s - 0.2:
+        for msg in sim.tick():
+            if type(msg).__name__ == "GroundTruth":
+                seen = msg.people[0].visible_laser
+                if not seen and start is None:
+                    start = sim.t_s
+                elif seen and start is not None:
+                    hidden.append(sim.t_s - start)
+                    start = None
+    assert start is None  # visible at the end
+    assert hidden == [pytest.approx(2.0, abs=0.2)] * 2
+
+
 def test_occlusion_scenario_hides_the_target_from_the_laser():
     sim = Simulation(load_builtin("livingston_box_occlusion"))
     seen = []
