@@ -80,7 +80,6 @@ from followbot.schemas import (
     TargetModel,
     TrackState,
     Verification,
-    VerifiedCandidate,
 )
 
 from .estimators import Estimator, estimator_factory, wrap_angle
@@ -249,11 +248,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """A lost target is re-taken by appearance only when vision's distance is at most this
     (None: the verifier's own threshold). In the simulator 94 % of the target's judgements lie
     at or below 0.7 and 17 % of the bystanders' (at 0.8: 98 % and 49 %)."""
-    ambiguous_window_m: Annotated[float, msgspec.Meta(ge=0)] = 0.0
-    """Beyond the thesis: vision's choice re-acquires a lost target or votes for a switch only
-    when no other candidate of that scan lies within this distance of the chosen one's line of
-    sight, measured across it at the nearer one's range: then one person stands in front of
-    the other in the image and the window vision judged holds both (0: off)."""
     switch_needs_target_seen: bool = False
     """A verification preferring another track counts towards switch_votes only when vision
     also judged the target's own candidate, or the target took none in that scan. Else
@@ -961,8 +955,6 @@ class Tracker:
             tid = self._nearest_track(xy[0], self.settings.model_match_m)
             if tid < 0:
                 return
-        if tid != self.target_id and self._ambiguous(v, chosen):
-            return  # the window may hold someone in front of or behind the chosen one
         if self.target_id < 0:
             limit = self.settings.reacquire_max_distance
             if self._had_target and limit is not None and not chosen.distance <= limit:
@@ -982,22 +974,6 @@ class Tracker:
         if votes >= self.settings.switch_votes or self._repairs_split(tid):
             self._set_target(tid)
             self._vision_sources = True
-
-    def _ambiguous(self, v: Verification, chosen: VerifiedCandidate) -> bool:
-        """ambiguous_window_m: another candidate of the scan in line with the chosen one."""
-        w = self.settings.ambiguous_window_m
-        if w <= 0:
-            return False
-        rc = math.hypot(chosen.x_m, chosen.y_m)
-        bc = math.atan2(chosen.y_m, chosen.x_m)
-        for c in v.candidates:
-            if c.index == chosen.index:
-                continue
-            r = math.hypot(c.x_m, c.y_m)
-            db = abs(math.remainder(math.atan2(c.y_m, c.x_m) - bc, math.tau))
-            if min(r, rc) * math.sin(min(db, math.pi / 2)) < w:
-                return True
-        return False
 
     def _target_hidden_in(self, v: Verification, scan: _Scan) -> bool:
         """The target took a candidate in ``scan`` (the laser saw it) but vision did not judge

@@ -532,33 +532,6 @@ def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
     assert abs(target.y_m - 1.2) < 0.2
 
 
-@pytest.mark.parametrize(
-    ("window", "behind", "reacquired"),
-    [(0.0, (3.0, 1.3), True), (0.3, (3.0, 1.3), False), (0.3, (3.0, 0.4), True)],
-)
-def test_reacquisition_waits_while_someone_stands_in_line_with_the_choice(
-    window, behind, reacquired
-):
-    """ambiguous_window_m: vision chose a person at (1.5, 0.65); with another candidate right
-    behind them on their line of sight, (3.0, 1.3), the window it judged may hold both, so the
-    choice does not re-acquire; with the other at (3.0, 0.4), 0.45 m off that line at the
-    chosen one's range, it does."""
-    trk = following_at_two(ambiguous_window_m=window)
-    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
-    for k in range(1, 11):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS))
-    assert target.status == "lost"
-    chosen = (1.5, 0.65)
-    for k in range(11, 14):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS, chosen, behind))
-    trk.add_verification(verification(13 * SCAN_NS, [chosen, behind], chosen=0))
-    still_robot(trk, 14 * SCAN_NS)
-    target, _ = trk.step(cands(14 * SCAN_NS, chosen, behind))
-    assert (target.status == "tracking") is reacquired
-
-
 @pytest.mark.parametrize(("limit", "reacquired"), [(None, True), (0.7, False), (0.8, True)])
 def test_reacquisition_can_ask_for_a_closer_match_than_verification(limit, reacquired):
     """reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost target
