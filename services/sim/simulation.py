@@ -63,9 +63,12 @@ GIVE_WAY_REACH = 2.5
 """A walker starts stepping aside this many clearances before passing the robot."""
 
 
-def _swerve(d: np.ndarray, w: np.ndarray, clearance_m: float) -> np.ndarray | None:
+def _swerve(
+    d: np.ndarray, w: np.ndarray, clearance_m: float, apart: tuple[float, float] = (0.0, 1.0)
+) -> np.ndarray | None:
     """Sideways step that moves offset ``d`` (from what is passed) out to the swerve curve for
-    relative velocity ``w`` (module doc, "Giving way"); None when no step is needed."""
+    relative velocity ``w`` (module doc, "Giving way"); None when no step is needed. Standing
+    on the very spot of what is passed, the step is ``clearance_m`` along the unit ``apart``."""
     speed = math.hypot(w[0], w[1])
     if speed > 1e-3:
         u = w / speed
@@ -87,7 +90,7 @@ def _swerve(d: np.ndarray, w: np.ndarray, clearance_m: float) -> np.ndarray | No
         return None
     if dist > 1e-9:
         return d * ((clearance_m - dist) / dist)
-    return np.array([0.0, clearance_m])  # on the same spot: apart along y (either way will do)
+    return clearance_m * np.array(apart)
 
 
 def _moved(state: PersonState, shift: np.ndarray) -> PersonState:
@@ -102,10 +105,8 @@ def give_way(
     """``state`` moved sideways so the body centre stays at least ``clearance_m`` (c) from the
     robot's centre (module doc, "Giving way"); the same object when it need not move."""
     d = state.position - np.array(robot_pose[:2], dtype=float)
-    if math.hypot(state.velocity[0], state.velocity[1]) <= 1e-3 and math.hypot(*d) <= 1e-9:
-        th = robot_pose[2]  # standing on the robot's centre: step to its left
-        return _moved(state, clearance_m * np.array([-math.sin(th), math.cos(th)]))
-    shift = _swerve(d, state.velocity, clearance_m)
+    left = (-math.sin(robot_pose[2]), math.cos(robot_pose[2]))  # on the robot's centre: its left
+    shift = _swerve(d, state.velocity, clearance_m, left)
     return state if shift is None else _moved(state, shift)
 
 
@@ -122,6 +123,7 @@ def give_way_to_each_other(states: list[PersonState], spacing_m: float) -> list[
             d = states[i].position - states[j].position
             if abs(d[0]) >= GIVE_WAY_REACH * spacing_m or abs(d[1]) >= GIVE_WAY_REACH * spacing_m:
                 continue
+            # on one spot: apart along y, either way will do
             step = _swerve(d, states[i].velocity - states[j].velocity, spacing_m)
             if step is not None:
                 shifts[i] += 0.5 * step

@@ -868,24 +868,18 @@ class Tracker:
                         self._set_target(tid)
                         return
         lost_at = self._lost_at
-        recent = (
-            s.laser_reacquire_max_s is None
-            or self._now[0] - self._lost_ns <= s.laser_reacquire_max_s * _NS
-        )
-        if (
-            self._had_target
-            and not vision
-            and lost_at is not None
-            and s.laser_reacquire_m > 0
-            and recent
-        ):
-            best, best_d = -1, s.laser_reacquire_m
-            for tid, ci in matched.items():
-                d = float(np.hypot(*(z[ci] - self._lost_at)))
-                if d <= best_d and self._walking(tid, s.laser_reacquire_min_speed_mps):
-                    best, best_d = tid, d
-            if best >= 0:
-                self._set_target(best)
+        if not self._had_target or vision or lost_at is None or s.laser_reacquire_m <= 0:
+            return
+        max_s = s.laser_reacquire_max_s
+        if max_s is not None and self._now[0] - self._lost_ns > max_s * _NS:
+            return  # lost too long ago: whoever passes there now is someone else
+        best, best_d = -1, s.laser_reacquire_m
+        for tid, ci in matched.items():
+            d = float(np.hypot(*(z[ci] - lost_at)))
+            if d <= best_d and self._walking(tid, s.laser_reacquire_min_speed_mps):
+                best, best_d = tid, d
+        if best >= 0:
+            self._set_target(best)
 
     def _walking(self, tid: int, min_speed_mps: float) -> bool:
         """Track ``tid`` moves at ``min_speed_mps`` or faster (recent velocity); any track
