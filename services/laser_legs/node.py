@@ -9,6 +9,7 @@ Health) — the lock-step rule 2 of docs/runtime.md.
 
     followbot run laser_legs --set detector=bellotto
     followbot run laser_legs --set detector=thesis --set 'detector_settings={clip_range_m: null}'
+    followbot run laser_legs --set self_filter=null     # keep candidates on the robot's body
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from followbot.services.runtime.settings import NodeSettings, SettingsError
 from .core import LegDetector, empty_candidates
 from .detectors import REGISTRY, make_detector
 from .prediction import TargetPredictor
+from .self_filter import SelfFilteredDetector, SelfFilterSettings
 
 __all__ = ["LaserLegsSettings", "build_detector", "main", "setup"]
 
@@ -51,6 +53,9 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     odometry): never wait."""
     laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
+    self_filter: SelfFilterSettings | None = SelfFilterSettings()
+    """Drop candidates on the robot's own body, recognised from the scans (beams steady while
+    the world moves past; see services/laser_legs/self_filter.py). null: off."""
 
     def __post_init__(self) -> None:
         # checked while the settings load, so a bad detector or key fails before any network
@@ -69,12 +74,15 @@ def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> 
         if check_only:
             msgspec.convert(dict(settings.detector_settings), cls.settings_type)
             return None
-        return make_detector(settings.detector, settings.detector_settings)
+        detector = make_detector(settings.detector, settings.detector_settings)
     except (ValueError, TypeError) as exc:
         fields = ", ".join(getattr(cls.settings_type, "__struct_fields__", ()))
         raise SettingsError(
             f"detector_settings for {settings.detector!r}: {exc} (valid keys: {fields})"
         ) from None
+    if settings.self_filter is not None:
+        return SelfFilteredDetector(detector, settings.self_filter)
+    return detector
 
 
 def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
@@ -151,6 +159,8 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     def notes() -> None:
         node.notes = [
             f"detector={detector.name}",
+            f"body_candidates_dropped={getattr(detector, 'dropped', 0)}",
+            f"body_beams={getattr(detector, 'body_beams', 0)}",
             f"gated_scans={predictor.used}",
             f"prediction_skipped={predictor.skipped}",
             f"lockstep_waits={counts['waits']}",

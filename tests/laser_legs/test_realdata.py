@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from followbot.services.laser_legs import make_detector
-from followbot.services.laser_legs.evaluate import VARIANTS
+from followbot.services.laser_legs.evaluate import VARIANTS, build
 from followbot.services.laser_legs.realdata import data_dir, read_negative, read_positive, score
 
 pytest.importorskip("rosbags", reason="rosbags is needed to read the ROS 1 bags")
@@ -55,12 +55,17 @@ def test_learned_figures_held_out():
     # the shipped model never saw these bags (train.py reads only the training split)
     pos = [s for n in ("positive_6", "positive_7") for s in read_positive(n)]
     neg = [s for t in ("/rear_scan", "/right_scan") for s in read_negative(t)]
-    sc = score(make_detector("learned"), pos, neg)
-    # the default (static background and temporal confirmation, thresholds 0.10 / 0.05, all
-    # chosen by cross-validation): measured 0.983 recall at 2.12 false persons/scan
-    # (docs/laser_legs.md); issue 4's target (>= 0.90 at <= 0.5) is not met
+    # as the node runs it: behind the robot-body filter; measured 0.983 recall at 0.87 false
+    # persons/scan (docs/laser_legs.md); issue 4's target (>= 0.90 at <= 0.5) is not met
+    sc = score(build("learned"), pos, neg)
     assert sc.recall > 0.95
-    assert sc.false_candidates_per_scan < 2.4
+    assert sc.false_candidates_per_scan < 1.1
+    # the detector alone (static background and temporal confirmation, thresholds 0.10 /
+    # 0.05, all chosen by cross-validation): measured 0.983 at 2.12, most of the difference
+    # pieces of the rear and right lasers' robot body
+    sc = score(make_detector("learned"), pos, neg)
+    assert sc.recall > 0.95
+    assert 1.5 < sc.false_candidates_per_scan < 2.4
     # without the tracks, at the thresholds chosen without them: measured 0.930 at 1.23
     sc = score(make_detector(*VARIANTS["learned_notrack"]), pos, neg)
     assert sc.recall > 0.90
@@ -78,3 +83,20 @@ def test_learned_background_is_reset_between_scorings():
     det = make_detector("learned")
     a, b = score(det, pos, neg), score(det, pos, neg)
     assert (a.found_legs, a.false_candidates) == (b.found_legs, b.false_candidates)
+
+
+def test_the_robot_body_is_found_at_the_ends_of_every_laser():
+    from followbot.services.laser_legs.self_filter import RobotBodyFilter
+
+    for topic in ("/left_scan", "/rear_scan", "/right_scan"):
+        scans = read_negative(topic)
+        f = RobotBodyFilter()
+        masks = np.array([f.update(s) for s in scans])
+        body = masks[len(scans) // 2 :].mean(axis=0) > 0.5  # once learned, most of the time
+        n = body.shape[0]
+        assert body.sum() >= 10, topic
+        # the body is where the field of view ends (the scanners see 270 deg, the robot behind)
+        idx = np.flatnonzero(body)
+        assert np.all((idx < 40) | (idx >= n - 40)), (topic, idx)
+        ranges = np.array([s.ranges.numpy() for s in scans[len(scans) // 2 :]])
+        assert np.nanmedian(ranges[:, body]) < 1.0
