@@ -421,7 +421,9 @@ class TrackState(Message, tag="track_state", kw_only=True):
     vision can tell whether it is the target; -1: none. The controller pans there."""
     look_x_m: Finite = 0.0
     look_y_m: Finite = 0.0
-    """Where that person is (base frame of the scan's stamp)."""
+    """Where that person is (base frame of the scan's stamp); with ``look_track_id`` -1, a
+    point to look at where nobody is tracked yet (where the lost target should be now), or
+    (0, 0): nowhere. The controller pans there."""
 
 
 class PersonTrack(msgspec.Struct, kw_only=True):

@@ -103,7 +103,8 @@ class FollowController:
         if status == "coasting":
             v, w, pan = self._goal
             return v, w, pan, "coasting"
-        if status == "lost" and s.pan_to_look and target.look_track_id >= 0:
+        looks = target.look_track_id >= 0 or (target.look_x_m, target.look_y_m) != (0.0, 0.0)
+        if status == "lost" and s.pan_to_look and looks:
             return 0.0, 0.0, math.atan2(target.look_y_m, target.look_x_m), status  # stop, look
         if status != "tracking":
             return 0.0, 0.0, self.pan, status  # lost / initialising: stop, camera stays

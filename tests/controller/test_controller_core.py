@@ -77,8 +77,13 @@ def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limit
             assert all(b - a <= 90 * 0.12 + 1e-9 for a, b in itertools.pairwise(pans))
         else:
             assert pans == [0.0] * 20
-    nobody = TrackState(stamp_ns=0, frame_id="base_link", status="lost", look_x_m=0.0, look_y_m=2.0)
-    assert FollowController().on_target(nobody, 0.12).pan_rad == 0.0  # look_track_id -1
+    nowhere = TrackState(stamp_ns=0, frame_id="base_link", status="lost")
+    assert FollowController().on_target(nowhere, 0.12).pan_rad == 0.0  # -1 at (0, 0)
+    # nobody tracked there yet, but a point to look at (where the lost target should be)
+    point = TrackState(stamp_ns=0, frame_id="base_link", status="lost", look_x_m=0.0, look_y_m=2.0)
+    c = FollowController().on_target(point, 0.12)
+    assert (c.linear_mps, c.angular_radps) == (0.0, 0.0)
+    assert math.degrees(c.pan_rad) == pytest.approx(90 * 0.12)
 
 
 def test_the_watchdog_brakes_to_rest_within_the_deceleration_limit():

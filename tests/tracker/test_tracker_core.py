@@ -513,7 +513,7 @@ def test_verification_naming_an_unknown_scan_is_counted_not_applied():
 
 
 def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
-    trk = following_at_two()
+    trk = following_at_two(look_gate_m=None)  # anyone vision takes (the gate: below)
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))  # vision is fresh
     for k in range(1, 11):  # the target disappears: lost after 9 misses
         still_robot(trk, k * SCAN_NS)
@@ -536,7 +536,7 @@ def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
 def test_reacquisition_can_ask_for_a_closer_match_than_verification(limit, reacquired):
     """reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost target
     is re-taken from that only when the limit allows it."""
-    trk = following_at_two(reacquire_max_distance=limit)
+    trk = following_at_two(reacquire_max_distance=limit, look_gate_m=None)
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
     for k in range(1, 11):
         still_robot(trk, k * SCAN_NS)
@@ -554,7 +554,7 @@ def test_reacquisition_can_ask_for_a_closer_match_than_verification(limit, reacq
 def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
     """look_while_lost: nearest to where the target was lost first; a person vision rejected
     look_rejections times is not looked at again; none while tracking or when switched off."""
-    trk = following_at_two(look_while_lost=True, look_dwell_s=10.0)
+    trk = following_at_two(look_gate_m=None, look_dwell_s=10.0)
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
     for k in range(1, 11):
         still_robot(trk, k * SCAN_NS)
@@ -576,11 +576,73 @@ def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
     assert looks[1:4] == [ids[a]] * 3
     assert looks[4:] == [ids[b]] * 5  # a was rejected twice (scans 13, 14): the camera turns to b
     assert (target.look_x_m, target.look_y_m) == pytest.approx(b, abs=0.05)
-    off = following_at_two()
+    off = following_at_two(look_while_lost=False)
     for k in range(1, 15):
         still_robot(off, k * SCAN_NS)
         target, _ = off.step(cands(k * SCAN_NS, *([a, b] if k > 10 else [])))
     assert target.status == "lost" and target.look_track_id == -1
+
+
+def _walk_then_hide(trk, scans_hidden):
+    """The target walks left at 0.5 m/s from (2, 0), accepted by vision, then is hidden."""
+    for k in range(1, 16):
+        still_robot(trk, k * SCAN_NS)
+        trk.step(cands(k * SCAN_NS, (2.0, 0.06 * k)))
+        trk.add_verification(verification(k * SCAN_NS, [(2.0, 0.06 * k)], chosen=0))
+    for k in range(16, 16 + scans_hidden):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    return target, 16 + scans_hidden
+
+
+def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
+    """look_gate_m: after the loss the camera looks where the target should be by now (moved
+    on at its walking velocity), and vision re-takes only someone near there; after
+    look_max_s anyone vision accepts, as without the gate."""
+    trk = following_at_two(look_while_lost=True, look_gate_m=0.5, look_max_s=4.0)
+    target, k = _walk_then_hide(trk, 10)
+    assert target.status == "lost" and target.look_track_id == -1
+    lost_y = target.y_m
+    assert target.look_x_m == pytest.approx(2.0, abs=0.15)
+    assert lost_y + 0.03 < target.look_y_m < lost_y + 0.2  # moving on, 0.12 s after the loss
+    still_robot(trk, k * SCAN_NS)
+    target, _ = trk.step(cands(k * SCAN_NS))
+    assert target.look_y_m > lost_y + 0.07  # still moving on
+    # a bystander back where the target came from; vision (wrongly) accepts it
+    back = (2.0, -0.5)
+    for j in range(k + 1, k + 6):
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, back))
+        trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
+    assert target.status == "lost"  # 2.5 m from where the target should be
+    # the target comes out on its path: taken at once
+    ahead = (2.0, lost_y + 0.5 * 0.12 * (j + 1 - k + 1))
+    for j in range(j + 1, j + 4):
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, back, ahead))
+        trk.add_verification(verification(j * SCAN_NS, [back, ahead], chosen=1))
+    still_robot(trk, (j + 1) * SCAN_NS)
+    target, _ = trk.step(cands((j + 1) * SCAN_NS, back, ahead))
+    assert target.status == "tracking" and target.y_m == pytest.approx(ahead[1], abs=0.1)
+
+
+def test_after_look_max_s_the_gate_no_longer_applies():
+    trk = following_at_two(look_while_lost=True, look_gate_m=0.5, look_max_s=1.0)
+    target, k = _walk_then_hide(trk, 10)
+    back = (2.0, -0.5)
+    for j in range(k, k + 14):  # 1.7 s: past look_max_s
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, back))
+        trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
+    assert target.status == "tracking" and target.y_m == pytest.approx(-0.5, abs=0.1)
+    # without the gate the bystander is taken as soon as vision accepts it
+    trk = following_at_two(look_gate_m=None)
+    target, k = _walk_then_hide(trk, 10)
+    for j in range(k, k + 4):
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, back))
+        trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
+    assert target.status == "tracking"
 
 
 def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
