@@ -616,13 +616,14 @@ def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
         trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
     assert target.status == "lost"  # 2.5 m from where the target should be
     # the target comes out on its path: taken at once
-    ahead = (2.0, lost_y + 0.5 * 0.12 * (j + 1 - k + 1))
-    for j in range(j + 1, j + 4):
-        still_robot(trk, j * SCAN_NS)
-        target, _ = trk.step(cands(j * SCAN_NS, back, ahead))
-        trk.add_verification(verification(j * SCAN_NS, [back, ahead], chosen=1))
-    still_robot(trk, (j + 1) * SCAN_NS)
-    target, _ = trk.step(cands((j + 1) * SCAN_NS, back, ahead))
+    first = k + 6
+    ahead = (2.0, lost_y + 0.5 * 0.12 * (first - k + 1))
+    for i in range(first, first + 3):
+        still_robot(trk, i * SCAN_NS)
+        target, _ = trk.step(cands(i * SCAN_NS, back, ahead))
+        trk.add_verification(verification(i * SCAN_NS, [back, ahead], chosen=1))
+    still_robot(trk, (first + 3) * SCAN_NS)
+    target, _ = trk.step(cands((first + 3) * SCAN_NS, back, ahead))
     assert target.status == "tracking" and target.y_m == pytest.approx(ahead[1], abs=0.1)
 
 
