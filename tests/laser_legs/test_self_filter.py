@@ -157,3 +157,12 @@ def test_node_filters_by_default_and_null_switches_it_off():
     assert not isinstance(plain, SelfFilteredDetector) and plain.name == "thesis"
     tuned = load_settings(LaserLegsSettings, overrides=["self_filter={max_range_m: 0.5}"])
     assert tuned.self_filter == SelfFilterSettings(max_range_m=0.5)
+
+
+def test_evaluate_scores_as_the_node_runs_unless_told_not_to():
+    from followbot.services.laser_legs.evaluate import build
+
+    assert isinstance(build("thesis"), SelfFilteredDetector)
+    assert isinstance(build("learned_notrack"), SelfFilteredDetector)
+    for plain in (build("learned_noself"), build("thesis", self_filter=False)):
+        assert not isinstance(plain, SelfFilteredDetector)
