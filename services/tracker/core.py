@@ -325,10 +325,9 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     appearance only such a track, for look_max_s after the loss; with no such track the
     camera looks at that predicted point. (A verification that drops the target by rejecting
     it and chooses another track is a switch: that track is taken wherever it is.) Then the
-    camera looks at that point only, and
-    vision may re-take anyone it accepts there (as with look_while_lost off, whose camera
-    stays where the target was lost). None: look at every track in turn, for as long as the
-    target is lost."""
+    camera looks at that point only, and vision may re-take anyone it accepts there (as with
+    look_while_lost off, whose camera stays where the target was lost). None: look at every
+    track in turn, for as long as the target is lost."""
     look_gate_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     look_predict_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
     look_max_s: Annotated[float, msgspec.Meta(ge=0)] = 4.0
@@ -646,8 +645,9 @@ class Tracker:
         # acquisition without vision (settings) and laser-only re-acquisition
         if self.target_id < 0:
             self._acquire_by_laser(z, matched, vision=not any(f in _NO_VISION for f in flags))
-        looking = s.look_while_lost and (s.look_gate_m is None or self._look_gate() is not None)
-        if self.target_id < 0 and self._had_target and looking and self.vision_alive:
+        lost = self.target_id < 0 and self._had_target and self.vision_alive
+        # with look_gate_m, only while the gate applies (look_max_s)
+        if lost and s.look_while_lost and (s.look_gate_m is None or self._look_gate()):
             self._choose_look(stamp)
         elif self._look[0] >= 0 or self._look_rejected or self._look_done:
             self._forget_looks()
@@ -811,12 +811,15 @@ class Tracker:
             return None
         return where, s.look_gate_m + s.look_gate_mps * elapsed
 
-    def _in_look_gate(self, tid: int) -> bool:
-        gate = self._look_gate()
+    @staticmethod
+    def _inside(gate: tuple[np.ndarray, float] | None, t: Track | None) -> bool:
+        """Track ``t`` lies in ``gate`` (from :meth:`_look_gate`; None: no gate, always)."""
         if gate is None:
             return True
-        t = self.tracks.get(tid)
         return t is not None and float(np.hypot(*(t.position - gate[0]))) <= gate[1]
+
+    def _in_look_gate(self, tid: int) -> bool:
+        return self._inside(self._look_gate(), self.tracks.get(tid))
 
     def _forget_looks(self) -> None:
         self._look = (-1, 0)
@@ -827,6 +830,7 @@ class Tracker:
         """look_while_lost: keep looking at the current track until vision judged it or
         look_dwell_s passed, then the next (settings)."""
         s = self.settings
+        gate = self._look_gate()
         tid, since = self._look
         if tid >= 0 and (
             tid not in self.tracks
@@ -844,7 +848,7 @@ class Tracker:
             and t.misses == 0
             and self._look_rejected.get(t.id, 0) < s.look_rejections
             and float(np.hypot(*t.position)) >= s.look_min_range_m
-            and self._in_look_gate(t.id)
+            and self._inside(gate, t)
         ]
         fresh = [t for t in eligible if t.id not in self._look_done]
         if eligible and not fresh:  # each looked at once: round again
@@ -853,7 +857,6 @@ class Tracker:
         if not fresh:
             self._look = (-1, 0)
             return
-        gate = self._look_gate()
         origin = np.zeros(2) if self._lost_at is None else self._lost_at
         if gate is not None:
             origin = gate[0]
@@ -1170,8 +1173,8 @@ class Tracker:
             x, y = (0.0, 0.0) if self._lost_at is None else map(float, self._lost_at)
             look = self.tracks.get(self._look[0])
             lx, ly = (0.0, 0.0) if look is None else map(float, look.position)
-            gate = self.settings.look_while_lost and self.settings.look_gate_m is not None
-            where = self._predicted_lost() if gate else None
+            gated = self.settings.look_while_lost and self.settings.look_gate_m is not None
+            where = self._predicted_lost() if gated else None
             if look is None and where is not None:
                 lx, ly = map(float, where)  # nobody to look at: where the target should be
             target = TrackState(
