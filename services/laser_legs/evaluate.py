@@ -50,6 +50,9 @@ VARIANTS: dict[str, tuple[str, dict]] = {
             "pair_threshold": 0.15,
         },
     ),
+    # the thresholds train.py's earlier rule chose (the highest validation recall with at
+    # most 0.4 false persons per scan; train.py --min-recall none)
+    "learned_maxrecall": ("learned", {"threshold": 0.10, "pair_threshold": 0.05}),
     # the default without the robot-body filter (the node's self_filter: null)
     "learned_noself": ("learned", {}),
     "thesis_noself": ("thesis", {}),

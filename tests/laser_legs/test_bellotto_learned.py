@@ -277,3 +277,30 @@ def test_threshold_choice_can_bound_the_labelled_scans_background():
     assert t < 0.45 and (rc, fp) == (1.0, 0.0)  # the negatives alone let the post through
     t, tp, rc, fp = choose_thresholds([pos], [neg], 0.5, 0.5, background_far_m=1.0)
     assert t == 0.5 and tp <= 0.25 and rc == 1.0
+
+
+def test_the_recall_rule_buys_the_fewest_false_persons_at_the_recall_asked():
+    """--min-recall: the fewest validation false persons among the thresholds reaching the
+    recall; the earlier rule (min_recall None) takes the highest recall its false-person bound
+    allows. A strong leg (0.6), a weak one (0.3), and two posts per negative scan (0.35)."""
+    from types import SimpleNamespace
+
+    from followbot.services.laser_legs.train import choose_thresholds
+
+    pos = SimpleNamespace(
+        cx=np.array([2.0, 3.0]),
+        cy=np.array([0.0, 2.0]),
+        score=np.array([0.6, 0.3]),
+        legs=np.array([[2.0, 0.0], [3.0, 2.0]]),
+    )
+    neg = SimpleNamespace(
+        cx=np.array([1.0, 4.0]), cy=np.array([1.0, -2.0]), score=np.array([0.35, 0.35]), legs=None
+    )
+    t, _tp, rc, fp = choose_thresholds([pos], [neg], 2.0, 0.5)
+    assert (rc, fp) == (1.0, 2.0) and t <= 0.3  # the weak leg, at the posts' price
+    t, _tp, rc, fp = choose_thresholds([pos], [neg], 2.0, 0.5, min_recall=0.5)
+    assert (rc, fp) == (0.5, 0.0) and 0.35 < t <= 0.6
+    t, _tp, rc, fp = choose_thresholds([pos], [neg], 2.0, 0.5, min_recall=0.9)
+    assert (rc, fp) == (1.0, 2.0)
+    _t, _tp, rc, _fp = choose_thresholds([pos], [neg], 0.0, 0.5, min_recall=1.5)
+    assert rc == 1.0  # out of reach: the highest recall
