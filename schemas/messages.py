@@ -34,6 +34,7 @@ __all__ = [
     "Candidate",
     "GroundTruth",
     "Health",
+    "Horizon",
     "Image",
     "LaserScan",
     "Leg",
@@ -289,6 +290,32 @@ class Candidate(msgspec.Struct, kw_only=True):
     confidence: _Probability = 1.0
 
 
+class Horizon(msgspec.Struct, kw_only=True):
+    """What the laser could see in one scan: the nearest return in each bearing bin, in the
+    scan's frame. Bin ``i`` covers bearings ``angle_min_rad + [i, i + 1) * increment_rad``.
+
+    ``ranges`` is 1-D float32 or float64, metres, 1 to MAX_BEAMS bins; +inf where no beam of the
+    bin returned (the laser looked and saw nothing out to its maximum range). A bearing outside
+    the bins was not looked at. The tracker reads it to tell a person hidden behind something
+    nearer (a miss that says nothing) from one who is not where expected (a miss that counts).
+    """
+
+    angle_min_rad: Angle
+    increment_rad: Annotated[float, msgspec.Meta(gt=0.0, le=math.pi)]
+    ranges: Array
+
+    def __post_init__(self) -> None:
+        r = self.ranges
+        require(len(r.shape) == 1, f"horizon ranges must be 1-D, got shape {r.shape}")
+        n = r.shape[0]
+        require(0 < n <= MAX_BEAMS, f"horizon has {n} bins, expected 1..{MAX_BEAMS}")
+        require(r.dtype in ("<f4", "<f8"), f"horizon ranges must be float32/float64, got {r.dtype}")
+        require(
+            self.increment_rad * n <= 2 * math.pi + 1e-6,
+            f"{n} bins of {self.increment_rad} rad span more than a full turn",
+        )
+
+
 class PersonCandidates(Message, tag="person_candidates", kw_only=True):
     """perception/candidates: every person candidate of one scan, stamped with the scan's stamp.
 
@@ -299,6 +326,9 @@ class PersonCandidates(Message, tag="person_candidates", kw_only=True):
     n_beams: Count = 0
     """Beams of the source scan: every leg's beam span lies in [0, n_beams)."""
     candidates: Annotated[list[Candidate], _Items] = []
+    horizon: Horizon | None = None
+    """The scan's nearest returns by bearing (laser detectors; None: not known). Lets the
+    tracker keep a person hidden behind something nearer (tracker ``occlusion_max_s``)."""
 
     def __post_init__(self) -> None:
         for c in self.candidates:

@@ -3,7 +3,8 @@
 Synthetic 720-beam scan (0.5 deg over 360 deg) of a room with two persons and a post, 1 cm
 range noise; median of many calls after a warm-up (the machine is shared and noisy: the median
 is the figure, the minimum shows the floor). Also the robot-body filter the node runs in front
-of every detector (``self_filter``), on a stream of that room turning past a 20-beam body.
+of every detector (``self_filter``), on a stream of that room turning past a 20-beam body, and
+the ``horizon`` the node sends with every scan's candidates.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 
 from followbot.schemas import LaserScan
 
+from .core import horizon
 from .detectors import DETECTORS, make_detector
 from .scene import make_scan, person_legs
 from .self_filter import RobotBodyFilter
@@ -37,17 +39,22 @@ def bench_scan(n_beams: int = 720):
     )
 
 
-def time_detector(name: str, scan, repeats: int = 3000) -> tuple[float, float]:
-    det = make_detector(name)
-    for _ in range(200):
-        det.detect(scan)
+def _timed(call, repeats: int) -> tuple[float, float]:
+    """(median, min) µs of ``call(i)`` for i in range(repeats)."""
     clock = time.perf_counter
     ts = np.empty(repeats)
     for i in range(repeats):
         t0 = clock()
-        det.detect(scan)
+        call(i)
         ts[i] = clock() - t0
     return float(np.median(ts) * 1e6), float(ts.min() * 1e6)
+
+
+def time_detector(name: str, scan, repeats: int = 3000) -> tuple[float, float]:
+    det = make_detector(name)
+    for _ in range(200):
+        det.detect(scan)
+    return _timed(lambda _i: det.detect(scan), repeats)
 
 
 def time_self_filter(scan, repeats: int = 3000) -> tuple[float, float]:
@@ -68,14 +75,15 @@ def time_self_filter(scan, repeats: int = 3000) -> tuple[float, float]:
     f = RobotBodyFilter()
     for k in range(200):
         f.update(turned(k))
-    clock = time.perf_counter
-    ts = np.empty(repeats)
-    for i in range(repeats):
-        s = turned(200 + i)
-        t0 = clock()
-        f.update(s)
-        ts[i] = clock() - t0
-    return float(np.median(ts) * 1e6), float(ts.min() * 1e6)
+    scans = [turned(200 + i) for i in range(repeats)]
+    return _timed(lambda i: f.update(scans[i]), repeats)
+
+
+def time_horizon(scan, repeats: int = 3000) -> tuple[float, float]:
+    """The candidates' ``horizon`` (1-degree bins), which the node adds to every message."""
+    for _ in range(200):
+        horizon(scan)
+    return _timed(lambda _i: horizon(scan), repeats)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.write(f"| {name} | {med:.0f} | {lo:.0f} |\n")
     med, lo = time_self_filter(scan, args.repeats)
     sys.stdout.write(f"| (robot-body filter, node default) | +{med:.0f} | +{lo:.0f} |\n")
+    med, lo = time_horizon(scan, args.repeats)
+    sys.stdout.write(f"| (horizon for the tracker, node default) | +{med:.0f} | +{lo:.0f} |\n")
     return 0
 
 

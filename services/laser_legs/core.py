@@ -32,7 +32,7 @@ from typing import Protocol, runtime_checkable
 import msgspec
 import numpy as np
 
-from followbot.schemas import Candidate, LaserScan, Leg, PersonCandidates
+from followbot.schemas import Array, Candidate, Horizon, LaserScan, Leg, PersonCandidates
 
 __all__ = [
     "NO_RETURN",
@@ -49,6 +49,7 @@ __all__ = [
     "cluster_sum",
     "empty_candidates",
     "gate",
+    "horizon",
     "inscribed_angle_stats",
     "pair_legs",
     "paired_candidates",
@@ -468,6 +469,49 @@ def _match_group(
         return score, chosen
 
     return best((1 << len(group)) - 1)[1]
+
+
+def horizon(scan: LaserScan, bin_rad: float = math.radians(1.0)) -> Horizon:
+    """The nearest return of ``scan`` in bearing bins of ``bin_rad`` (the scan's own resolution
+    when coarser), ascending bearings whatever the scan's direction; +inf in a bin where no beam
+    returned (NaN, inf, 0 and out-of-range beams). Beam ``i`` covers
+    ``angle_min + (i -+ 1/2) * increment``; the bins start where the first beam does."""
+    r = scan.ranges.numpy()
+    n = r.shape[0]
+    inc = float(scan.angle_increment_rad)
+    a0 = float(scan.angle_min_rad)
+    if inc < 0:  # bearings descending: the same beams read the other way round
+        r = r[::-1]
+        a0 += inc * (n - 1)
+        inc = -inc
+    rr = np.where(valid_mask(r, scan.range_min_m, scan.range_max_m), r, np.inf)
+    if n == 1 or inc == 0.0:
+        width = bin_rad
+        return Horizon(
+            angle_min_rad=_wrap(a0 - width / 2),
+            increment_rad=width,
+            ranges=Array.from_numpy(np.array([rr.min()], dtype=np.float32)),
+        )
+    width = max(bin_rad, inc)
+    bins, first, where = _horizon_bins(n, inc, width)
+    out = np.full(bins, np.inf, dtype=np.float32)
+    out[where] = np.minimum.reduceat(rr, first)
+    return Horizon(
+        angle_min_rad=_wrap(a0 - inc / 2), increment_rad=width, ranges=Array.from_numpy(out)
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def _horizon_bins(n: int, inc: float, width: float) -> tuple[int, np.ndarray, np.ndarray]:
+    """(bins, first beam of each bin that has beams, that bin's index) of a scan geometry."""
+    bins = max(1, min(math.ceil(n * inc / width - 1e-9), math.floor(2 * math.pi / width + 1e-9)))
+    idx = np.minimum(((np.arange(n) + 0.5) * (inc / width)).astype(np.intp), bins - 1)
+    first = np.flatnonzero(np.concatenate(([True], idx[1:] != idx[:-1])))
+    return bins, first, idx[first]
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def empty_candidates(scan: LaserScan, detector: str) -> PersonCandidates:

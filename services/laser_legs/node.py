@@ -14,6 +14,7 @@ Health) — the lock-step rule 2 of docs/runtime.md.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from typing import Annotated, Any
@@ -25,7 +26,7 @@ from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError
 
-from .core import LegDetector, empty_candidates
+from .core import LegDetector, empty_candidates, horizon
 from .detectors import REGISTRY, make_detector
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
@@ -53,6 +54,10 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     odometry): never wait."""
     laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
+    horizon_bin_deg: Annotated[float, msgspec.Meta(gt=0, le=45)] | None = 1.0
+    """Publish with each scan's candidates the nearest return per bin of this many degrees
+    (perception/candidates ``horizon``; the scan's resolution when coarser), so the tracker can
+    tell a person hidden behind something from one who is gone. null: not published."""
     self_filter: SelfFilterSettings | None = SelfFilterSettings()
     """Drop candidates on the robot's own body, recognised from the scans (beams steady while
     the world moves past; see services/laser_legs/self_filter.py). null: off."""
@@ -96,6 +101,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     )
 
     # Lock-step: scans held until the target naming the previous scan arrives (see settings).
+    bin_rad = None if settings.horizon_bin_deg is None else math.radians(settings.horizon_bin_deg)
     held: deque[tuple[LaserScan, float]] = deque()
     stamps = {"scan": -1, "target": -1, "odom": -1}
     counts = {"waits": 0, "wait_timeouts": 0}
@@ -141,13 +147,14 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     def process(scan: LaserScan) -> None:
         stamps["scan"] = max(stamps["scan"], scan.stamp_ns)
         prediction = predictor.predict(scan) if settings.use_target_prediction else None
+        seen = None if bin_rad is None else horizon(scan, bin_rad)
         try:
             result = detector.detect(scan, prediction)
         except Exception:
             # rule 2: one output per scan even when the detector fails; the error is counted
-            out.put(empty_candidates(scan, detector.name))
+            out.put(msgspec.structs.replace(empty_candidates(scan, detector.name), horizon=seen))
             raise
-        out.put(result)
+        out.put(result if seen is None else msgspec.structs.replace(result, horizon=seen))
 
     node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
     if settings.use_target_prediction:

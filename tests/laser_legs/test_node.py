@@ -309,3 +309,20 @@ def test_lockstep_holds_a_scan_until_the_odometry_of_its_instant_arrives():
     late, early = run(odometry_first=False), run(odometry_first=True)
     assert len(late) == 1
     assert late == early
+
+
+def test_the_candidates_carry_the_scans_horizon_unless_switched_off():
+    h = Harness()
+    h.put("sensors/scan", two_people(5 * MS))
+    seen = h.out[-1].horizon
+    # 361 beams 0.5 degrees apart: 180.5 degrees in 1-degree bins
+    assert seen is not None and seen.ranges.shape == [181]
+    r = seen.ranges.numpy()
+    # the two people 1.7 m away at +-28 deg hide the wall behind them (3.4 m there)
+    for bearing in (28.0, -28.0):
+        k = int((math.radians(bearing) - seen.angle_min_rad) / seen.increment_rad)
+        assert r[k - 4 : k + 5].min() < 1.8  # (between the legs the wall shows)
+    assert r[int(-seen.angle_min_rad / seen.increment_rad)] == pytest.approx(3.0, abs=0.05)
+    off = Harness(horizon_bin_deg=None)
+    off.put("sensors/scan", two_people(5 * MS))
+    assert off.out[-1].horizon is None
