@@ -64,6 +64,15 @@ _Probability = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 # --------------------------------------------------------------------------- sensors
 
 
+def _ranges_length(r: Array, what: str, items: str) -> int:
+    """The length of ``r``, checked: 1-D float32/float64 of 1 to MAX_BEAMS values."""
+    require(len(r.shape) == 1, f"{what} must be 1-D, got shape {r.shape}")
+    n = r.shape[0]
+    require(0 < n <= MAX_BEAMS, f"{what} has {n} {items}, expected 1..{MAX_BEAMS}")
+    require(r.dtype in ("<f4", "<f8"), f"{what} must be float32/float64, got {r.dtype}")
+    return n
+
+
 class LaserScan(Message, tag="laser_scan", kw_only=True):
     """sensors/scan: one sweep of a 2D laser (as sensor_msgs/LaserScan).
 
@@ -86,11 +95,7 @@ class LaserScan(Message, tag="laser_scan", kw_only=True):
     """Time between beams."""
 
     def __post_init__(self) -> None:
-        r = self.ranges
-        require(len(r.shape) == 1, f"ranges must be 1-D, got shape {r.shape}")
-        n = r.shape[0]
-        require(0 < n <= MAX_BEAMS, f"ranges has {n} beams, expected 1..{MAX_BEAMS}")
-        require(r.dtype in ("<f4", "<f8"), f"ranges must be float32/float64, got {r.dtype}")
+        n = _ranges_length(self.ranges, "ranges", "beams")
         require(self.angle_increment_rad != 0.0 or n == 1, "angle_increment_rad is 0")
         require(
             abs(self.angle_increment_rad) * (n - 1) <= 2 * math.pi + 1e-6,
@@ -99,8 +104,8 @@ class LaserScan(Message, tag="laser_scan", kw_only=True):
         require(self.range_min_m < self.range_max_m, "range_min_m must be < range_max_m")
         if self.intensities is not None:
             require(
-                self.intensities.shape == r.shape,
-                f"intensities shape {self.intensities.shape} != ranges shape {r.shape}",
+                self.intensities.shape == self.ranges.shape,
+                f"intensities shape {self.intensities.shape} != ranges shape {self.ranges.shape}",
             )
 
     @classmethod
@@ -305,11 +310,7 @@ class Horizon(msgspec.Struct, kw_only=True):
     ranges: Array
 
     def __post_init__(self) -> None:
-        r = self.ranges
-        require(len(r.shape) == 1, f"horizon ranges must be 1-D, got shape {r.shape}")
-        n = r.shape[0]
-        require(0 < n <= MAX_BEAMS, f"horizon has {n} bins, expected 1..{MAX_BEAMS}")
-        require(r.dtype in ("<f4", "<f8"), f"horizon ranges must be float32/float64, got {r.dtype}")
+        n = _ranges_length(self.ranges, "horizon ranges", "bins")
         require(
             self.increment_rad * n <= 2 * math.pi + 1e-6,
             f"{n} bins of {self.increment_rad} rad span more than a full turn",
