@@ -39,7 +39,13 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     # chosen without it; and without the static background too
     "learned_notrack": (
         "learned",
-        {"track_memory_s": None, "threshold": 0.25, "pair_threshold": 0.10},
+        {
+            "track_memory_s": None,
+            "threshold": 0.25,
+            "pair_threshold": 0.10,
+            "background_static_fraction": 0.9,
+            "background_penalty": 0.15,
+        },
     ),
     "learned_nobg": (
         "learned",
@@ -50,9 +56,17 @@ VARIANTS: dict[str, tuple[str, dict]] = {
             "pair_threshold": 0.15,
         },
     ),
-    # the thresholds train.py's earlier rule chose (the highest validation recall with at
-    # most 0.4 false persons per scan; train.py --min-recall none)
-    "learned_maxrecall": ("learned", {"threshold": 0.10, "pair_threshold": 0.05}),
+    # the background and thresholds train.py's earlier rule chose (the highest validation
+    # recall with at most 0.4 false persons per scan; train.py --min-recall none)
+    "learned_maxrecall": (
+        "learned",
+        {
+            "threshold": 0.10,
+            "pair_threshold": 0.05,
+            "background_static_fraction": 0.9,
+            "background_penalty": 0.15,
+        },
+    ),
     # the default without the robot-body filter (the node's self_filter: null)
     "learned_noself": ("learned", {}),
     "thesis_noself": ("thesis", {}),

@@ -135,18 +135,19 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Parameters of :class:`RandomTreesLegDetector`.
 
     The thresholds were chosen by ``train.py`` for the shipped model (cross-validation inside
-    the training split: the fewest false persons per scan at a leg recall of 0.92 or more); a
-    model trained with other features or data needs its own.
+    the training split: the fewest false persons per scan at a leg recall of 0.92 or more), as
+    were the background settings; a model trained with other features or data needs its own.
     """
 
     model_path: str = ""  # "" = the model shipped with the package
-    # thresholds by train.py's rule of the eighth session (--min-recall 0.92: the fewest
-    # validation false persons at >= 0.92 validation recall; docs/laser_legs.md) on the
-    # background and track settings below, which the earlier rule chose (the highest validation
-    # recall within 0.4 false persons/scan; that rule's thresholds, 0.10 / 0.05, are evaluate's
-    # `learned_maxrecall`; with the background but no tracks it chose 0.25 / 0.10:
-    # `learned_notrack`; with neither 0.35 / 0.15: `learned_nobg`)
-    threshold: float = 0.15  # score for a one-leg person (train.py, cross-validation)
+    # thresholds chosen with the background and track settings below by train.py's rule of the
+    # eighth session (--min-recall 0.92: the fewest validation false persons at >= 0.92
+    # validation recall; the background chosen again under the tracks; docs/laser_legs.md).
+    # The earlier rule (the highest validation recall within 0.4 false persons/scan) chose the
+    # background 2 s / 0.9 / 0.15 and these thresholds: evaluate's `learned_maxrecall`; with
+    # the background but no tracks 0.25 / 0.10: `learned_notrack`; with neither 0.35 / 0.15:
+    # `learned_nobg`
+    threshold: float = 0.10  # score for a one-leg person (train.py, cross-validation)
     pair_threshold: float = 0.05  # score of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
@@ -157,8 +158,8 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     # background_static_fraction of at least background_min_views views over the last
     # background_memory_s seconds loses background_penalty of its vote share. None or 0: off.
     background_memory_s: float | None = 2.0  # train.py, cross-validation
-    background_static_fraction: float = 0.9  # train.py, cross-validation
-    background_penalty: float = 0.15  # train.py, cross-validation (1: never a leg)
+    background_static_fraction: float = 0.8  # train.py, cross-validation
+    background_penalty: float = 0.3  # train.py, cross-validation (1: never a leg)
     background_min_views: int = 5  # a choice: ~0.7 s of a 7.5 Hz laser
     background_hit_m: float = 0.15  # a choice: leg radius + matching error
     background_ego_motion: bool = True  # register scans (ICP); False: the laser is still
