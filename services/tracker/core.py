@@ -253,7 +253,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     since the track was last seen. The track coasts on meanwhile (coast_velocity_s) and takes
     its person back when they come out from behind the pillar, instead of being deleted after
     ~1 s and re-acquired by appearance; once past the thesis's budget it takes only a candidate
-    no other track takes. 3 s: occlusion_pillar tracked 1.00 of the visible time on 4 of 6
+    no other track takes. 3 s: occlusion_pillar tracked 1.00 of the visible time on 3 of 6
     seeds, but where the person turned behind the pillar the coasting track kept the camera
     on the wrong spot for longer, and crowds lost more (docs/tracker.md, eighth session). 0,
     or candidates without a horizon: every miss counts (the thesis)."""
