@@ -445,6 +445,26 @@ def choose_tracks(streams, positives, negatives, background, args, s: LearnedSet
     return rows
 
 
+def _report_background(out, title: str, rows) -> tuple[float, float, float]:
+    """Write the background ``rows`` (best first) under ``title``; the best's (memory,
+    fraction, penalty)."""
+    out.write(
+        f"{title}:\n  memory_s fraction penalty | threshold pair | recall "
+        "| false/scan /left_scan | background\n"
+    )
+    for m, f, pen, tt, ttp, r_, f_, b_ in rows:
+        out.write(
+            f"  {m:5.1f} {f:4.2f} {pen:4.2f} | {tt:.2f} {ttp:.2f} | {r_:.3f} "
+            f"| {f_:.2f} | {b_:.2f}\n"
+        )
+    bm, bf, bp = rows[0][:3]
+    out.write(
+        f"chosen background: background_memory_s {bm:g}, background_static_fraction {bf:g}, "
+        f"background_penalty {bp:g}\n"
+    )
+    return bm, bf, bp
+
+
 def _negatives_in_folds(neg: list[ScanData]) -> list[list[ScanData]]:
     q = len(neg) // FOLDS
     return [neg[i * q : (i + 1) * q if i < FOLDS - 1 else len(neg)] for i in range(FOLDS)]
@@ -539,21 +559,11 @@ def main(argv: list[str] | None = None) -> int:
     t1 = time.perf_counter()
     background_counts([*pos, neg], [m for m in args.background_memories if m], s)
     log.info("background counts in %.1f s", time.perf_counter() - t1)
-    rows = choose_background(all_pos, neg, args, s)
-    out.write(
+    bm, bf, bp = _report_background(
+        out,
         "static background (cross-validation, out-of-fold; each with its own thresholds; "
-        "memory 0 = off):\n  memory_s fraction penalty | threshold pair | recall "
-        "| false/scan /left_scan | background\n"
-    )
-    for m, f, pen, tt, ttp, r_, f_, b_ in rows:
-        out.write(
-            f"  {m:5.1f} {f:4.2f} {pen:4.2f} | {tt:.2f} {ttp:.2f} | {r_:.3f} "
-            f"| {f_:.2f} | {b_:.2f}\n"
-        )
-    bm, bf, bp = rows[0][:3]
-    out.write(
-        f"chosen background: background_memory_s {bm:g}, background_static_fraction {bf:g}, "
-        f"background_penalty {bp:g}\n"
+        "memory 0 = off)",
+        choose_background(all_pos, neg, args, s),
     )
     # 3. the temporal confirmation on top of the chosen background, with its own thresholds
     streams = [*pos, neg]
@@ -571,21 +581,11 @@ def main(argv: list[str] | None = None) -> int:
     out.write(f"chosen tracks: track_memory_s {tm:g}, track_weight {tw:g}, track_velocity {tv}\n")
     # 4. the background again, now under the chosen tracks (the stages interact: the first
     # stage's best need not be the best under the second)
-    rows = choose_background(all_pos, neg, args, s, streams=streams, tracks=(tm, tw, tv))
-    out.write(
+    bm, bf, bp = _report_background(
+        out,
         "static background again, under the chosen tracks (cross-validation, out-of-fold; "
-        "each with its own thresholds):\n  memory_s fraction penalty | threshold pair | recall "
-        "| false/scan /left_scan | background\n"
-    )
-    for m, f, pen, tt, ttp, r_, f_, b_ in rows[:10]:
-        out.write(
-            f"  {m:5.1f} {f:4.2f} {pen:4.2f} | {tt:.2f} {ttp:.2f} | {r_:.3f} "
-            f"| {f_:.2f} | {b_:.2f}\n"
-        )
-    bm, bf, bp = rows[0][:3]
-    out.write(
-        f"chosen background: background_memory_s {bm:g}, background_static_fraction {bf:g}, "
-        f"background_penalty {bp:g}\n"
+        "each with its own thresholds; the best 10)",
+        choose_background(all_pos, neg, args, s, streams=streams, tracks=(tm, tw, tv))[:10],
     )
     with_background([*all_pos, *neg], bm, bf, s.background_min_views, bp)
     with_tracks(streams, bm, tm, tw, tv, s)
