@@ -1187,3 +1187,24 @@ def test_a_long_hidden_track_takes_only_what_no_other_track_takes():
     assert target.track_id == tid and target.status == "coasting" and target.misses == 15
     where = {p.id: (p.x_m, p.y_m) for p in people.tracks}
     assert where[neighbour][1] < 0.6  # the neighbour took the candidate at y = 0.40
+
+
+def test_only_the_targets_track_is_kept_while_hidden():
+    """Other people's tracks are deleted after more than 8 misses, hidden or not: kept, they
+    competed with the people coming out from behind things (crowd_ten)."""
+    trk = Tracker(TrackerSettings(acquire="nearest", occlusion_max_s=3.0))
+    wall = horizon_of([(15, 30, 1.5)])  # hides the bystander at 22 degrees, not the target
+    for k in range(15):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(
+            msgspec.structs.replace(
+                cands(k * SCAN_NS, (2.5, 0.0), (2.5, 1.0)), horizon=horizon_of()
+            )
+        )
+    bystander = next(p.id for p in people.tracks if p.id != target.track_id)
+    for k in range(15, 24):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(
+            msgspec.structs.replace(cands(k * SCAN_NS, (2.5, 0.0)), horizon=wall)
+        )
+    assert target.status == "tracking" and bystander not in trk.tracks
