@@ -104,7 +104,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     bin_rad = None if settings.horizon_bin_deg is None else math.radians(settings.horizon_bin_deg)
     held: deque[tuple[LaserScan, float]] = deque()
     stamps = {"scan": -1, "target": -1, "odom": -1}
-    counts = {"waits": 0, "wait_timeouts": 0}
+    counts = {"waits": 0, "wait_timeouts": 0, "horizon_errors": 0}
     target_wait = settings.lockstep_target_wait_s if settings.use_target_prediction else 0.0
     odom_wait = settings.lockstep_odometry_wait_s if settings.use_target_prediction else 0.0
     wait_s = max(target_wait, odom_wait)
@@ -147,7 +147,12 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     def process(scan: LaserScan) -> None:
         stamps["scan"] = max(stamps["scan"], scan.stamp_ns)
         prediction = predictor.predict(scan) if settings.use_target_prediction else None
-        seen = None if bin_rad is None else horizon(scan, bin_rad)
+        try:
+            seen = None if bin_rad is None else horizon(scan, bin_rad)
+        except Exception:  # never on a valid scan (property-tested); the candidates still go
+            node.log.exception("horizon of scan %d failed; candidates sent without it", scan.seq)
+            counts["horizon_errors"] += 1
+            seen = None
         try:
             result = detector.detect(scan, prediction)
         except Exception:
@@ -172,6 +177,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             f"prediction_skipped={predictor.skipped}",
             f"lockstep_waits={counts['waits']}",
             f"lockstep_wait_timeouts={counts['wait_timeouts']}",
+            f"horizon_errors={counts['horizon_errors']}",
         ]
 
     notes()

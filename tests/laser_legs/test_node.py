@@ -326,3 +326,17 @@ def test_the_candidates_carry_the_scans_horizon_unless_switched_off():
     off = Harness(horizon_bin_deg=None)
     off.put("sensors/scan", two_people(5 * MS))
     assert off.out[-1].horizon is None
+
+
+def test_a_failing_horizon_still_sends_the_candidates(monkeypatch, caplog):
+    from followbot.services.laser_legs import node as node_module
+
+    def boom(scan, bin_rad):
+        raise RuntimeError("horizon bug")
+
+    monkeypatch.setattr(node_module, "horizon", boom)
+    h = Harness()
+    h.put("sensors/scan", two_people(7 * MS))
+    assert [len(m.candidates) for m in h.out] == [2]
+    assert h.out[0].horizon is None
+    assert "horizon of scan" in caplog.text  # logged (and counted in the Health notes)
