@@ -55,6 +55,7 @@ __all__ = [
     "paired_candidates",
     "prepare",
     "valid_mask",
+    "wrap_angle",
 ]
 
 #: Optional tracked-target position (x_m, y_m) in the scan's frame (thesis criterion 3).
@@ -485,19 +486,16 @@ def horizon(scan: LaserScan, bin_rad: float = math.radians(1.0)) -> Horizon:
         a0 += inc * (n - 1)
         inc = -inc
     rr = np.where(valid_mask(r, scan.range_min_m, scan.range_max_m), r, np.inf)
-    if n == 1 or inc == 0.0:
-        width = bin_rad
-        return Horizon(
-            angle_min_rad=_wrap(a0 - width / 2),
-            increment_rad=width,
-            ranges=Array.from_numpy(np.array([rr.min()], dtype=np.float32)),
-        )
+    if n == 1:  # one beam (its increment may be 0): one bin centred on it
+        inc = bin_rad
     width = max(bin_rad, inc)
     bins, first, where = _horizon_bins(n, inc, width)
     out = np.full(bins, np.inf, dtype=np.float32)
     out[where] = np.minimum.reduceat(rr, first)
     return Horizon(
-        angle_min_rad=_wrap(a0 - inc / 2), increment_rad=width, ranges=Array.from_numpy(out)
+        angle_min_rad=wrap_angle(a0 - inc / 2),
+        increment_rad=width,
+        ranges=Array.from_numpy(out),
     )
 
 
@@ -510,7 +508,8 @@ def _horizon_bins(n: int, inc: float, width: float) -> tuple[int, np.ndarray, np
     return bins, first, idx[first]
 
 
-def _wrap(a: float) -> float:
+def wrap_angle(a: float) -> float:
+    """``a`` wrapped into [-pi, pi)."""
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 

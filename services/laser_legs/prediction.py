@@ -34,15 +34,11 @@ from collections import deque
 
 from followbot.schemas import LaserScan, Odometry, TrackState
 
-from .core import Prediction
+from .core import Prediction, wrap_angle
 
 __all__ = ["OdometryBuffer", "TargetPredictor"]
 
 _NS = 1e-9
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class OdometryBuffer:
@@ -91,7 +87,7 @@ class OdometryBuffer:
         x0, y0, a0, _, _ = self._poses[j - 1]
         x1, y1, a1, _, _ = self._poses[j]
         f = (stamp_ns - t0) / (t1 - t0)
-        return x0 + f * (x1 - x0), y0 + f * (y1 - y0), a0 + f * _wrap(a1 - a0)
+        return x0 + f * (x1 - x0), y0 + f * (y1 - y0), a0 + f * wrap_angle(a1 - a0)
 
 
 class TargetPredictor:
