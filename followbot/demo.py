@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(f"  followed the right person:  {verdict}")
     print(f"  target tracked while visible: {v('tracked_visible_share', '.1%')}")
+    print(f"  on the target after learning: {v('followed_share_acquired', '.1%')} of the time")
     print(f"  target position RMSE:         {v('rmse_m')} m")
     print(f"  identity switches:            {switches}")
     print(f"  follow distance in [1, 2] m:  {v('follow_distance_share', '.1%')} of tracked time")

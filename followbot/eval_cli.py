@@ -114,6 +114,7 @@ def _one_line(m: dict) -> str:
 
     return (
         f"rmse {f('rmse_m', '.3f')} m, tracked {f('tracked_visible_share', '.1%')}, "
+        f"followed {f('followed_share_acquired', '.1%')}, "
         f"identity switches {f('identity_switches', 'd')}, MOTA {f('mota', '.2f')}"
     )
 

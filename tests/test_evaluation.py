@@ -276,6 +276,22 @@ def test_tracked_share_from_the_first_acquisition_leaves_out_the_learning_time()
     assert m["tracked_visible_share_acquired"] == pytest.approx(10 / 15)
 
 
+def test_a_target_lost_for_good_out_of_view_shows_in_the_followed_share_only():
+    """The robot loses the target and the person stays out of its view to the end: no visible
+    scan is missed, so the visible shares say 1.0; followed_share_acquired says 10 of 30."""
+    vis = "v" * 10 + "." * 20
+    trk = "y" * 10 + "." * 20
+    m = compute_metrics(_occlusion_run(vis, trk))
+    assert m["tracked_visible_share_acquired"] == pytest.approx(1.0)
+    assert m["followed_share_acquired"] == pytest.approx(10 / 30)
+    # tracked through a hidden stretch (coasting on target) counts as followed
+    m = compute_metrics(_occlusion_run("vv" + "." * 6 + "vv", "." + "y" * 9))
+    assert m["followed_share_acquired"] == pytest.approx(1.0)
+    # coasting off the target does not
+    m = compute_metrics(_occlusion_run("v" * 10, "y" * 5 + "c" * 5))
+    assert m["followed_share_acquired"] == pytest.approx(0.5)
+
+
 def test_immediate_reacquisition_is_zero_and_mean_over_episodes():
     vis = "vvv" + "...." + "vvv" + "....." + "vvvv"
     trk = "yyy" + "...." + "yyy" + "....." + ".yyy"
@@ -540,9 +556,9 @@ def test_single_preset_report_has_one_results_table(tmp_path):
     text = write_report(runs, tmp_path, plots=False).read_text()
     assert "## Results" in text
     assert "## Presets side by side" not in text
-    assert "| scenario | acq. s | tracked | tr. acq. | RMSE m | ID sw. |" in text
-    assert "| a | 0 | 1 | 1 | 0.1 | 0 |" in text  # tracked from the first scan
-    assert "| b | 0 | 1 | 1 | 0.1 | 0 |" in text
+    assert "| scenario | acq. s | tracked | tr. acq. | followed | RMSE m | ID sw. |" in text
+    assert "| a | 0 | 1 | 1 | 1 | 0.1 | 0 |" in text  # tracked from the first scan
+    assert "| b | 0 | 1 | 1 | 1 | 0.1 | 0 |" in text
 
 
 def test_plot_run_with_gaps_switches_and_no_latency(tmp_path):
