@@ -12,7 +12,9 @@ Rule (from the target's estimate in the base frame of its scan):
 By status: ``tracking`` applies the rule; ``coasting`` keeps the previous goal (thesis 3.6.2.8:
 fewer than 9 misses keep the previous command); ``lost`` and ``initialising`` stop; the
 watchdog (no fresh target, tracker gone) stops. While lost the camera pans to the person the
-tracker names for a look (``pan_to_look``, beyond the thesis), else it holds its angle.
+tracker names for a look (``pan_to_look``, beyond the thesis), else it holds its angle; so
+does it while coasting when the tracker names a look (a target hidden past the miss budget,
+tracker setting ``occlusion_look``), the base keeping its coasting command.
 
 Limits, applied to every command whatever produced it (dt: time since the previous command):
 
@@ -58,7 +60,9 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     """Never drive backwards unless allowed (the thesis robot only follows)."""
     pan_to_look: bool = True
     """Beyond the thesis: while the target is lost, pan the camera to the person the tracker
-    names (TrackState.look_*) so vision can re-identify the target; the base stays still."""
+    names (TrackState.look_*) so vision can re-identify the target; the base stays still.
+    Also while coasting, when the tracker names a look (occlusion_look), the base keeping its
+    coasting command."""
 
 
 class Command(msgspec.Struct, frozen=True):
@@ -100,10 +104,12 @@ class FollowController:
         """(v*, w*, pan*, reason) of the thesis rule, before limits."""
         s = self.settings
         status = target.status
+        looks = target.look_track_id >= 0 or (target.look_x_m, target.look_y_m) != (0.0, 0.0)
         if status == "coasting":
             v, w, pan = self._goal
+            if s.pan_to_look and looks:  # hidden past the miss budget (occlusion_look): search
+                pan = math.atan2(target.look_y_m, target.look_x_m)
             return v, w, pan, "coasting"
-        looks = target.look_track_id >= 0 or (target.look_x_m, target.look_y_m) != (0.0, 0.0)
         if status == "lost" and s.pan_to_look and looks:
             return 0.0, 0.0, math.atan2(target.look_y_m, target.look_x_m), status  # stop, look
         if status != "tracking":

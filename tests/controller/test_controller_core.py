@@ -86,6 +86,26 @@ def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limit
     assert math.degrees(c.pan_rad) == pytest.approx(90 * 0.12)
 
 
+def test_coasting_with_a_look_keeps_the_base_going_and_turns_the_camera_to_the_look():
+    """A target hidden past the miss budget (tracker setting occlusion_look) is coasting with a
+    look: the base keeps the coasting command, the camera turns to the look (pan_to_look)."""
+    for on in (True, False):
+        ctl = FollowController(ControllerSettings(pan_to_look=on))
+        for _ in range(40):
+            c = ctl.on_target(target(2.5, 0.0), 0.12)
+        v_tracking = c.linear_mps
+        hidden = TrackState(
+            stamp_ns=0, frame_id="base_link", status="coasting", x_m=2.5,
+            look_track_id=-1, look_x_m=1.0, look_y_m=1.0,  # 45 deg left
+        )  # fmt: skip
+        pans = []
+        for _ in range(8):
+            c = ctl.on_target(hidden, 0.12)
+            assert c.linear_mps == pytest.approx(v_tracking) and c.reason == "coasting"
+            pans.append(math.degrees(c.pan_rad))
+        assert pans[-1] == (pytest.approx(45.0) if on else pytest.approx(0.0, abs=1e-9))
+
+
 def test_the_watchdog_brakes_to_rest_within_the_deceleration_limit():
     ctl = FollowController()
     for _ in range(40):

@@ -1208,3 +1208,120 @@ def test_only_the_targets_track_is_kept_while_hidden():
             msgspec.structs.replace(cands(k * SCAN_NS, (2.5, 0.0)), horizon=wall)
         )
     assert target.status == "tracking" and bystander not in trk.tracks
+
+
+def test_without_vision_nothing_at_the_robot_itself_is_retaken():
+    """laser_reacquire_min_range_m: a target lost 0.4 m ahead is not re-taken by the laser
+    from a track 0.2 m from the laser (the robot's body, or what it drove up to); a person
+    0.45 m away is."""
+    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.0))
+    for k in range(12):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (0.4, 0.0)) if k < 2 else cands(k * SCAN_NS))
+    assert target.status == "lost"
+    still_robot(trk, 12 * SCAN_NS)
+    target, _ = trk.step(cands(12 * SCAN_NS, (0.2, 0.0)))
+    assert target.status == "lost"
+    still_robot(trk, 13 * SCAN_NS)
+    target, _ = trk.step(cands(13 * SCAN_NS, (0.2, 0.0), (0.45, 0.1)))
+    assert target.status == "tracking" and target.x_m == pytest.approx(0.45, abs=0.1)
+
+
+def _hidden_walk_with_vision(trk, hidden_scans, extra=()):
+    """The target walks across 2.5 m ahead at 0.6 m/s, accepted by vision, then a wall 1.5 m
+    ahead hides it for ``hidden_scans`` scans while ``extra`` candidates (fixed) are seen;
+    returns (track id, the outputs while hidden, the scan after)."""
+    dt = SCAN_NS / 1e9
+
+    def at(k):
+        return (2.5, -1.0 + 0.6 * dt * k)
+
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, *at(0)))
+    for k in range(15):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(
+            msgspec.structs.replace(cands(k * SCAN_NS, at(k), *extra), horizon=horizon_of())
+        )
+        trk.add_verification(
+            verification(k * SCAN_NS, [at(k), *extra], chosen=0, threshold=0.8)
+        )
+    tid = target.track_id
+    outputs = []
+    wall = horizon_of([(-60, 60, 1.5)])
+    for k in range(15, 15 + hidden_scans):
+        still_robot(trk, k * SCAN_NS)
+        c = msgspec.structs.replace(cands(k * SCAN_NS, *extra), horizon=wall)
+        outputs.append(trk.step(c)[0])
+    return tid, outputs, 15 + hidden_scans
+
+
+def test_a_target_hidden_past_the_miss_budget_is_searched_for_while_its_track_coasts():
+    """occlusion_look: within the thesis's 8 misses nothing changes; from the 9th the camera
+    is asked to look where the target should be (as for a lost target, same gate), while the
+    status stays coasting on the hidden track; the person taken back where they come out."""
+    trk = Tracker(TrackerSettings(occlusion_max_s=3.0))
+    tid, outputs, k = _hidden_walk_with_vision(trk, 12)
+    assert all(o.status == "coasting" and o.track_id == tid for o in outputs)
+    assert all(o.look_track_id == -1 and (o.look_x_m, o.look_y_m) == (0, 0) for o in outputs[:8])
+    searching = outputs[8:]
+    assert all(o.look_x_m == pytest.approx(2.5, abs=0.3) for o in searching)
+    assert searching[-1].look_y_m > searching[0].look_y_m  # moving on with the walker
+    assert trk._searching
+    # without occlusion_look the camera is told nothing while the track coasts
+    quiet = Tracker(TrackerSettings(occlusion_max_s=3.0, occlusion_look=False))
+    _tid, outputs, _k = _hidden_walk_with_vision(quiet, 12)
+    assert all((o.look_x_m, o.look_y_m) == (0, 0) for o in outputs)
+
+
+def test_a_new_person_inside_the_search_gate_ends_the_hidden_guess():
+    """Past the budget, someone new where the target can be (inside the look gate, 0.5 m +
+    0.5 m/s since the search began) but beyond the hidden track's own gate may be the target
+    come out elsewhere: the hidden track goes at once and the target is lost, for vision to
+    decide -- not reported at its guessed place meanwhile."""
+    trk = Tracker(TrackerSettings(occlusion_max_s=3.0))
+    tid, outputs, k = _hidden_walk_with_vision(trk, 20)
+    assert outputs[-1].status == "coasting" and trk._searching
+    guess = (outputs[-1].x_m, outputs[-1].y_m)
+    # 1.05 m nearer than the guess: the look gate is ~1.2 m by now, the track's gate 0.95 m
+    newcomer = (guess[0] - 1.05, guess[1])
+    still_robot(trk, k * SCAN_NS)
+    bearing = math.degrees(math.atan2(guess[1], guess[0]))  # the guess stays hidden
+    wall = horizon_of([(bearing - 10, bearing + 10, 1.5)])
+    assert abs(math.degrees(math.atan2(newcomer[1], newcomer[0])) - bearing) > 12
+    target, people = trk.step(msgspec.structs.replace(cands(k * SCAN_NS, newcomer), horizon=wall))
+    assert target.status == "lost" and tid not in trk.tracks
+    assert target.look_x_m != 0 or target.look_y_m != 0  # the search goes on, as for a loss
+
+
+def test_a_miss_in_plain_view_past_the_budget_ends_the_hidden_guess():
+    """Past the budget only the occlusion keeps the track; when the laser sees through to
+    where it should be and nobody is there, the guess is wrong: lost at once (before the
+    budget the same miss only counts, as the thesis says)."""
+    trk = Tracker(TrackerSettings(occlusion_max_s=3.0))
+    tid, outputs, k = _hidden_walk_with_vision(trk, 10)
+    assert outputs[-1].status == "coasting" and outputs[-1].misses == 10
+    still_robot(trk, k * SCAN_NS)
+    target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS), horizon=horizon_of()))
+    assert target.status == "lost" and tid not in trk.tracks
+
+
+def test_vision_accepting_someone_inside_the_search_gate_takes_them_at_once():
+    """A person already there before the target was hidden (a bystander 0.6 m beside its
+    path) is accepted by vision while the target is searched for: taken at once (one
+    verification, not switch_votes), not counted as a switch, the hidden track gone."""
+    bystander = (2.6, 0.2)
+    trk = Tracker(TrackerSettings(occlusion_max_s=3.0, switch_votes=3))
+    tid, outputs, k = _hidden_walk_with_vision(trk, 10, extra=[bystander])
+    assert outputs[-1].status == "coasting" and outputs[-1].track_id == tid
+    other = next(t for t in trk.tracks if t != tid)
+    trk.add_verification(
+        verification((k - 1) * SCAN_NS, [bystander], chosen=0, distances=[0.3], threshold=0.8)
+    )
+    still_robot(trk, k * SCAN_NS)
+    target, _ = trk.step(
+        msgspec.structs.replace(cands(k * SCAN_NS, bystander), horizon=horizon_of([(-60, 0, 1.5)]))
+    )
+    assert target.status == "tracking" and target.track_id == other
+    assert tid not in trk.tracks and trk.target_switches == 0
