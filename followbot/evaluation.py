@@ -759,7 +759,7 @@ KEY_METRICS: list[tuple[str, str, str, str]] = [
     ("acquired_s", "Target first tracked at (s; - = never)", "acq. s", "low"),
     ("tracked_visible_share", "Tracked while visible (share)", "tracked", "high"),
     ("tracked_visible_share_acquired", "... from the first acquisition on", "tr. acq.", "high"),
-    ("followed_share_acquired", "On the target, visible or not, after acquisition", "followed", "high"),
+    ("followed_share_acquired", "On the target, visible or not, after acq.", "followed", "high"),
     ("rmse_m", "Target RMSE (m)", "RMSE m", "low"),
     ("identity_switches", "Identity switches", "ID sw.", "low"),
     ("wrong_target_s", "Time on a wrong person (s)", "wrong s", "low"),

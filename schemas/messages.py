@@ -448,8 +448,9 @@ class TrackState(Message, tag="track_state", kw_only=True):
     """Degradations in force, e.g. no_odometry, no_vision."""
     estimator: Name = ""
     look_track_id: int = -1
-    """While ``lost``: the tracked person (tracking/people id) the camera should look at so
-    vision can tell whether it is the target; -1: none. The controller pans there."""
+    """While ``lost`` (or ``coasting`` with a target hidden past the miss budget, tracker
+    setting occlusion_look): the tracked person (tracking/people id) the camera should look at
+    so vision can tell whether it is the target; -1: none. The controller pans there."""
     look_x_m: Finite = 0.0
     look_y_m: Finite = 0.0
     """Where that person is (base frame of the scan's stamp); with ``look_track_id`` -1, a

@@ -1244,9 +1244,7 @@ def _hidden_walk_with_vision(trk, hidden_scans, extra=()):
         target, _ = trk.step(
             msgspec.structs.replace(cands(k * SCAN_NS, at(k), *extra), horizon=horizon_of())
         )
-        trk.add_verification(
-            verification(k * SCAN_NS, [at(k), *extra], chosen=0, threshold=0.8)
-        )
+        trk.add_verification(verification(k * SCAN_NS, [at(k), *extra], chosen=0, threshold=0.8))
     tid = target.track_id
     outputs = []
     wall = horizon_of([(-60, 60, 1.5)])
@@ -1269,6 +1267,13 @@ def test_a_target_hidden_past_the_miss_budget_is_searched_for_while_its_track_co
     assert all(o.look_x_m == pytest.approx(2.5, abs=0.3) for o in searching)
     assert searching[-1].look_y_m > searching[0].look_y_m  # moving on with the walker
     assert trk._searching
+    # they come out where the track expects them: taken back by the laser, the search over
+    still_robot(trk, k * SCAN_NS)
+    where = (2.5, -1.0 + 0.6 * (SCAN_NS / 1e9) * k)
+    c = msgspec.structs.replace(cands(k * SCAN_NS, where), horizon=horizon_of())
+    target, _ = trk.step(c)
+    assert target.status == "tracking" and target.track_id == tid
+    assert (target.look_track_id, target.look_x_m, target.look_y_m) == (-1, 0, 0)
     # without occlusion_look the camera is told nothing while the track coasts
     quiet = Tracker(TrackerSettings(occlusion_max_s=3.0, occlusion_look=False))
     _tid, outputs, _k = _hidden_walk_with_vision(quiet, 12)
@@ -1290,7 +1295,7 @@ def test_a_new_person_inside_the_search_gate_ends_the_hidden_guess():
     bearing = math.degrees(math.atan2(guess[1], guess[0]))  # the guess stays hidden
     wall = horizon_of([(bearing - 10, bearing + 10, 1.5)])
     assert abs(math.degrees(math.atan2(newcomer[1], newcomer[0])) - bearing) > 12
-    target, people = trk.step(msgspec.structs.replace(cands(k * SCAN_NS, newcomer), horizon=wall))
+    target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS, newcomer), horizon=wall))
     assert target.status == "lost" and tid not in trk.tracks
     assert target.look_x_m != 0 or target.look_y_m != 0  # the search goes on, as for a loss
 
