@@ -1330,3 +1330,37 @@ def test_vision_accepting_someone_inside_the_search_gate_takes_them_at_once():
     )
     assert target.status == "tracking" and target.track_id == other
     assert tid not in trk.tracks and trk.target_switches == 0
+
+
+@pytest.mark.parametrize(("margin", "taken"), [(0.2, False), (None, True)])
+def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(margin, taken):
+    """front_margin_m: the target stands 2 m ahead, a passer-by's track beside it; the
+    passer-by crosses 0.3 m in front of the target, on its bearing, hiding it. The target's
+    track (gate 0.4 m) coasts instead of taking the passer-by, and takes the target back when
+    it shows again. Off: it takes the passer-by."""
+    trk = following_at_two(front_margin_m=margin, reject_votes=0)
+    for k in range(1, 5):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0), (1.75, 0.35)))
+    tid = target.track_id
+    assert target.status == "tracking" and target.x_m == pytest.approx(2.0, abs=0.05)
+    still_robot(trk, 5 * SCAN_NS)
+    target, _ = trk.step(cands(5 * SCAN_NS, (1.7, 0.05)))
+    assert (target.status == "tracking" and target.x_m < 1.85) == taken
+    if not taken:
+        assert target.status == "coasting" and target.track_id == tid
+        still_robot(trk, 6 * SCAN_NS)
+        target, _ = trk.step(cands(6 * SCAN_NS, (2.0, 0.0), (1.7, -0.05)))
+        assert target.status == "tracking" and target.track_id == tid
+        assert target.x_m == pytest.approx(2.0, abs=0.1)
+
+
+def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
+    """front_margin_m: alone, a candidate in front of the target's (lagging) estimate is the
+    target coming closer -- 1.5 m/s straight at the robot is taken every scan."""
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    for k in range(12):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (3.0 - 0.18 * k, 0.0)))
+        if k:
+            assert target.status == "tracking"
