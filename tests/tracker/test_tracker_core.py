@@ -1364,3 +1364,30 @@ def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
         target, _ = trk.step(cands(k * SCAN_NS, (3.0 - 0.18 * k, 0.0)))
         if k:
             assert target.status == "tracking"
+
+
+@pytest.mark.parametrize(
+    ("offset", "legs", "expected_x"), [(0.1, 1, 2.0), (0.0, 1, 1.9), (0.1, 2, 1.9)]
+)
+def test_a_leg_seen_alone_stands_for_a_person_centred_behind_it(offset, legs, expected_x):
+    """lone_leg_offset_m: a person standing 2 m ahead shows only the near leg, 1.9 m away: the
+    estimate settles 0.1 m beyond it, at 2.0 m. The thesis (0) stays on the leg; a two-leg
+    candidate is the person's centre as it is."""
+
+    def seen(stamp_ns):
+        if legs == 1:
+            leg = [Leg(x_m=1.9, y_m=0.0, first_beam=10, last_beam=14)]
+        else:
+            leg = [Leg(x_m=1.9, y_m=-0.1, first_beam=10, last_beam=14),
+                   Leg(x_m=1.9, y_m=0.1, first_beam=20, last_beam=24)]  # fmt: skip
+        c = Candidate(x_m=1.9, y_m=0.0, range_m=1.9, bearing_rad=0.0, legs=leg)
+        return PersonCandidates(
+            stamp_ns=stamp_ns, frame_id="base_laser", n_beams=100, candidates=[c]
+        )
+
+    trk = Tracker(TrackerSettings(acquire="nearest", lone_leg_offset_m=offset))
+    for k in range(30):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(seen(k * SCAN_NS))
+    assert target.status == "tracking"
+    assert target.x_m == pytest.approx(expected_x, abs=0.03)
