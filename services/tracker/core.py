@@ -360,6 +360,10 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     docs/tracker.md): RMSE lower on most scenarios (ristic_circles 0.083 -> 0.062 m), but
     identity switches on two-person scenarios (two_people own seed 0 -> 1, 0.48 s) and 14.3 s
     on wrong people against 5.8 s. 0: the thesis."""
+    lone_leg_clear_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """... only for a track with no other track within this distance: near someone, a lone
+    leg may be hidden by, or pair with, them, and moving it outwards moved the target onto
+    whoever walked behind."""
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
@@ -715,9 +719,16 @@ class Tracker:
             if s.one_leg_noise_scale != 1.0:
                 scales = np.where(lone, s.one_leg_noise_scale, 1.0)
             if s.lone_leg_offset_m:  # the person's centre lies behind a leg seen alone
+                where = {t.id: t.position for t in self.tracks.values()}
                 for i, alone in enumerate(lone):
                     r = float(np.hypot(*zs[i]))
-                    if alone and r > 0:
+                    me = where[updated[i].id]
+                    clear = all(
+                        float(np.hypot(*(xy - me))) > s.lone_leg_clear_m
+                        for tid, xy in where.items()
+                        if tid != updated[i].id
+                    )
+                    if alone and r > 0 and clear:
                         zs[i] = zs[i] * (1.0 + s.lone_leg_offset_m / r)
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:

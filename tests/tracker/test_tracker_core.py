@@ -1391,3 +1391,22 @@ def test_a_leg_seen_alone_stands_for_a_person_centred_behind_it(offset, legs, ex
         target, _ = trk.step(seen(k * SCAN_NS))
     assert target.status == "tracking"
     assert target.x_m == pytest.approx(expected_x, abs=0.03)
+
+
+def test_a_lone_leg_is_not_moved_out_towards_someone_near_it():
+    """lone_leg_clear_m: with another person 0.6 m behind, the lone leg is taken as it is (moved
+    outwards, it pulled the target towards whoever walked behind it)."""
+
+    def seen(stamp_ns):
+        leg = [Leg(x_m=1.9, y_m=0.0, first_beam=10, last_beam=14)]
+        near = Candidate(x_m=1.9, y_m=0.0, range_m=1.9, bearing_rad=0.0, legs=leg)
+        behind = Candidate(x_m=2.5, y_m=0.0, range_m=2.5, bearing_rad=0.0)
+        return PersonCandidates(
+            stamp_ns=stamp_ns, frame_id="base_laser", n_beams=100, candidates=[near, behind]
+        )
+
+    trk = Tracker(TrackerSettings(acquire="nearest", lone_leg_offset_m=0.1))
+    for k in range(30):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(seen(k * SCAN_NS))
+    assert target.status == "tracking" and target.x_m == pytest.approx(1.9, abs=0.03)
