@@ -363,7 +363,8 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     lone_leg_clear_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """... only for a track with no other track within this distance: near someone, a lone
     leg may be hidden by, or pair with, them, and moving it outwards moved the target onto
-    whoever walked behind."""
+    whoever walked behind. (It did not remove those switches: criterion 3 leaves the
+    bystander without a track; docs/tracker.md, ninth session.)"""
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
