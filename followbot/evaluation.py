@@ -341,15 +341,15 @@ def _tracking(records: list[ScanRecord], dt_s: np.ndarray, s: EvaluationSettings
         tracked = _is_tracked(rec.target)
         if tracked and acquired_s is None:
             acquired_s = (rec.stamp_ns - t0) / 1e9
+        e = _error_m(rec.target, tgt) if tracked and tgt is not None else None
         if acquired_s is not None:
             after_acq_s += dt
-            if tracked and tgt is not None and _error_m(rec.target, tgt) <= s.track_match_m:
+            if e is not None and e <= s.track_match_m:
                 followed_s += dt
         if tgt is not None and tgt.visible_laser:
             visible += 1
             visible_acq += acquired_s is not None
-            if tracked:
-                e = _error_m(rec.target, tgt)
+            if e is not None:
                 sq.append(e * e)
                 good += e <= s.track_match_m
                 good_acq += e <= s.track_match_m

@@ -664,11 +664,7 @@ class Tracker:
                 best = np.column_stack(
                     [np.argmin(g, axis=1) for g in np.split(cost_p, starts[1:], axis=1)]
                 )
-            # a target hidden for longer than the thesis's miss budget (occlusion_max_s; no
-            # other track lives that long) takes only what no other track takes: a person
-            # coming out from behind something is a new appearance, not a neighbour of where
-            # they went in
-            if s.front_margin_m is not None and self.target_id in self.tracks:
+            if s.front_margin_m is not None and self.target_id in self.tracks and len(ids) > 1:
                 # someone passing in front of the target hides it: not the target's candidate
                 # when another track can take it (alone, it may be the target coming closer)
                 r = ids.index(self.target_id)
@@ -682,6 +678,10 @@ class Tracker:
                 )
                 others = np.isfinite(np.delete(cost, r, axis=0)).any(axis=0)
                 cost[r, (dr >= s.front_margin_m) & (db <= half) & others] = np.inf
+            # a target hidden for longer than the thesis's miss budget (occlusion_max_s; no
+            # other track lives that long) takes only what no other track takes: a person
+            # coming out from behind something is a new appearance, not a neighbour of where
+            # they went in
             late = np.array(
                 [s.occlusion_max_s > 0 and self.tracks[tid].misses > s.max_misses for tid in ids]
             )
@@ -723,13 +723,14 @@ class Tracker:
                 where = {t.id: t.position for t in self.tracks.values()}
                 for i, alone in enumerate(lone):
                     r = float(np.hypot(*zs[i]))
+                    if not alone or r <= 0:
+                        continue
                     me = where[updated[i].id]
-                    clear = all(
+                    if all(
                         float(np.hypot(*(xy - me))) > s.lone_leg_clear_m
                         for tid, xy in where.items()
                         if tid != updated[i].id
-                    )
-                    if alone and r > 0 and clear:
+                    ):
                         zs[i] = zs[i] * (1.0 + s.lone_leg_offset_m / r)
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
