@@ -32,6 +32,7 @@ from typing import Protocol, runtime_checkable
 import msgspec
 import numpy as np
 
+from followbot.geometry import wrap_angle
 from followbot.schemas import Array, Candidate, Horizon, LaserScan, Leg, PersonCandidates
 
 __all__ = [
@@ -506,11 +507,6 @@ def _horizon_bins(n: int, inc: float, width: float) -> tuple[int, np.ndarray, np
     idx = np.minimum(((np.arange(n) + 0.5) * (inc / width)).astype(np.intp), bins - 1)
     first = np.flatnonzero(np.concatenate(([True], idx[1:] != idx[:-1])))
     return bins, first, idx[first]
-
-
-def wrap_angle(a: float) -> float:
-    """``a`` wrapped into [-pi, pi)."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def empty_candidates(scan: LaserScan, detector: str) -> PersonCandidates:

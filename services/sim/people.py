@@ -34,17 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from followbot.geometry import wrap_angle
+
 from .scenario import ArcStep, PauseStep, PersonSpec, TurnStep, WalkStep
 
 __all__ = ["BLEND_S", "Person", "PersonState", "Phase", "compile_path"]
 
 #: Seconds over which the legs move between the walking and the standing pose.
 BLEND_S = 0.5
-
-
-def wrap(angle_rad: float) -> float:
-    """Angle wrapped to [-pi, pi)."""
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,7 +133,7 @@ def compile_path(spec: PersonSpec) -> tuple[list[Phase], float]:
             a1 = a0 + sweep
             t, s = t + dist / v, s + dist
             p = (c[0] + r * math.cos(a1), c[1] + r * math.sin(a1))
-            h, walking = wrap(a1 + sign * math.pi / 2), True
+            h, walking = wrap_angle(a1 + sign * math.pi / 2), True
         elif isinstance(step, PauseStep):
             phases.append(
                 Phase(
@@ -154,7 +151,7 @@ def compile_path(spec: PersonSpec) -> tuple[list[Phase], float]:
             t, walking = t + step.duration_s, False
         elif isinstance(step, TurnStep):
             goal = math.radians(step.heading_deg)
-            dur = abs(wrap(goal - h)) / turn_rate
+            dur = abs(wrap_angle(goal - h)) / turn_rate
             phases.append(
                 Phase(
                     "stand",
@@ -168,7 +165,7 @@ def compile_path(spec: PersonSpec) -> tuple[list[Phase], float]:
                     turn_rate_radps=turn_rate,
                 )
             )
-            t, h, walking = t + dur, wrap(goal), False
+            t, h, walking = t + dur, wrap_angle(goal), False
     return phases, s
 
 
@@ -238,7 +235,7 @@ class Person:
                 last.centre[0] + last.radius_m * math.cos(a),
                 last.centre[1] + last.radius_m * math.sin(a),
             )
-            return p, wrap(a + last.sign * math.pi / 2)
+            return p, wrap_angle(a + last.sign * math.pi / 2)
         return last.p0, last.path_heading_rad
 
     def _locate(self, t: float) -> tuple[Phase, float, float]:
@@ -277,15 +274,15 @@ class Person:
         else:  # stand / turn on the spot
             p = np.asarray(ph.p0, dtype=float)
             vel = np.zeros(2)
-            d = wrap(ph.path_heading_rad - ph.heading0_rad)
+            d = wrap_angle(ph.path_heading_rad - ph.heading0_rad)
             turned = min(abs(d), ph.turn_rate_radps * tau)
-            h = wrap(ph.heading0_rad + math.copysign(turned, d))
+            h = wrap_angle(ph.heading0_rad + math.copysign(turned, d))
             sigma = min(1.0, tau / BLEND_S) if ph.after_walk else 1.0
             return PersonState(p, vel, h, self._legs(p, h, ph.s0_m + extra_s, sigma))
         # body heading swings from the previous heading to the path's at the turn rate
-        d = wrap(ph.heading0_rad - hp)
+        d = wrap_angle(ph.heading0_rad - hp)
         left = max(0.0, abs(d) - ph.turn_rate_radps * tau)
-        h = wrap(hp + math.copysign(left, d))
+        h = wrap_angle(hp + math.copysign(left, d))
         sigma = max(0.0, 1.0 - tau / BLEND_S) if ph.after_stand else 0.0
         return PersonState(p, vel, h, self._legs(p, h, s + extra_s, sigma))
 

@@ -32,7 +32,8 @@ import math
 
 import numpy as np
 
-from .people import wrap
+from followbot.geometry import wrap_angle
+
 from .scenario import RobotSpec
 
 __all__ = ["DiffDriveRobot"]
@@ -109,7 +110,7 @@ class DiffDriveRobot:
         else:
             self.x_m += v * dt_s * math.cos(th)
             self.y_m += v * dt_s * math.sin(th)
-        self.yaw_rad = wrap(th + w * dt_s)
+        self.yaw_rad = wrap_angle(th + w * dt_s)
         self._integrate_odometry(v * dt_s, w * dt_s, dt_s)
 
     def _integrate_odometry(self, ds: float, dth: float, dt_s: float) -> None:
@@ -132,7 +133,7 @@ class DiffDriveRobot:
         mid = self.odom_yaw_rad + dth / 2
         self.odom_x_m += chord * math.cos(mid)
         self.odom_y_m += chord * math.sin(mid)
-        self.odom_yaw_rad = wrap(self.odom_yaw_rad + dth)
+        self.odom_yaw_rad = wrap_angle(self.odom_yaw_rad + dth)
         self.odom_v_mps = ds / dt_s
         self.odom_w_radps = dth / dt_s
 

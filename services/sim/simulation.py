@@ -41,11 +41,12 @@ import math
 
 import numpy as np
 
+from followbot.geometry import wrap_angle
 from followbot.schemas import GroundTruth, Image, LaserScan, Message, Odometry, PersonTruth
 
 from .camera import CameraModel
 from .laser import LaserModel
-from .people import Person, PersonState, wrap
+from .people import Person, PersonState
 from .robot import DiffDriveRobot
 from .scenario import Scenario
 from .world import StaticWorld
@@ -294,7 +295,7 @@ class Simulation:
         return Image.from_array(
             pixels,
             stamp_ns=self.t_ns,
-            pan_rad=float(wrap(self.robot.pan_rad)),
+            pan_rad=float(wrap_angle(self.robot.pan_rad)),
             seq=self._next_seq("image"),
         )
 
@@ -352,7 +353,7 @@ class Simulation:
             robot_yaw_rad=float(yaw),
             robot_v_mps=float(r.v_mps),
             robot_w_radps=float(r.w_radps),
-            camera_pan_rad=float(wrap(pan)),
+            camera_pan_rad=float(wrap_angle(pan)),
             target_id=self.target_id,
             people=people,
         )

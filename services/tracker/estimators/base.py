@@ -20,12 +20,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from followbot.geometry import wrap_angle
+
 __all__ = ["Estimator", "wrap_angle"]
-
-
-def wrap_angle(a):
-    """Angle(s) wrapped to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 @runtime_checkable
