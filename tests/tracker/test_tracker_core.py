@@ -631,7 +631,9 @@ def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
 
 
 def test_after_look_max_s_the_gate_no_longer_applies():
-    trk = following_at_two(look_while_lost=True, look_gate_m=0.5, look_max_s=1.0)
+    trk = following_at_two(
+        look_while_lost=True, look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=None
+    )
     target, k = _walk_then_hide(trk, 10)
     back = (2.0, -0.5)
     for j in range(k, k + 14):  # 1.7 s: past look_max_s
@@ -647,6 +649,66 @@ def test_after_look_max_s_the_gate_no_longer_applies():
         target, _ = trk.step(cands(j * SCAN_NS, back))
         trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
     assert target.status == "tracking"
+
+
+@pytest.mark.parametrize("distance", [0.6, 0.4])
+def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_match(distance):
+    """look_wide_max_distance: past look_max_s the camera looks at people far from where the
+    target should be (not only at that point), and vision re-takes such a person only on a
+    close match (bellotto_cluttered_office: the target comes back past the stopped robot)."""
+    looks = {}
+    for wide in (None, 0.45):
+        trk = following_at_two(look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=wide)
+        target, k = _walk_then_hide(trk, 10)
+        seen = []
+        for j in range(k, k + 20):  # 2.4 s: past look_max_s; a walker 3 m from the gate
+            walker = (1.0 + 0.06 * (j - k), -1.5)
+            still_robot(trk, j * SCAN_NS)
+            target, _ = trk.step(cands(j * SCAN_NS, walker))
+            seen.append(target.look_track_id)
+        looks[wide] = seen
+        assert target.status == "lost"
+        j = k + 20
+        for j in range(k + 20, k + 24):  # vision accepts the walker
+            walker = (1.0 + 0.06 * (j - k), -1.5)
+            still_robot(trk, j * SCAN_NS)
+            trk.add_verification(
+                verification(j * SCAN_NS, [walker], chosen=0, distances=[distance], threshold=0.8)
+            )
+            target, _ = trk.step(cands(j * SCAN_NS, walker))
+        retaken = target.status == "tracking" and target.y_m == pytest.approx(-1.5, abs=0.15)
+        if wide is None:
+            assert retaken  # as before: anyone vision accepts past look_max_s
+        else:
+            assert retaken == (distance <= wide)
+    assert set(looks[None]) == {-1}  # the camera stays on the point where the target should be
+    assert max(looks[0.45]) >= 0  # it looks at the walker too
+
+
+def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_as_before():
+    """look_wide_max_distance: within look_wide_gate_m of where the lost target should be
+    (here about (2, 1.9)) anyone vision accepts is re-taken, as without the setting; a person
+    tracked since before the loss is not looked at."""
+    trk = following_at_two(look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45)
+    old = (1.0, -1.5)  # walking since before the loss
+    for k in range(1, 16):
+        still_robot(trk, k * SCAN_NS)
+        trk.step(cands(k * SCAN_NS, (2.0, 0.06 * k), (old[0] + 0.06 * k, old[1])))
+        trk.add_verification(verification(k * SCAN_NS, [(2.0, 0.06 * k)], chosen=0))
+    looks = []
+    for k in range(16, 46):  # hidden, then lost; past look_max_s
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (old[0] + 0.06 * k, old[1])))
+        looks.append(target.look_track_id)
+    assert target.status == "lost" and set(looks) == {-1}  # the camera on the point only
+    near = (2.2, 1.4)  # a newcomer 0.5 m from where the target should be
+    for k in range(46, 52):
+        still_robot(trk, k * SCAN_NS)
+        trk.add_verification(
+            verification(k * SCAN_NS, [near], chosen=0, distances=[0.6], threshold=0.8)
+        )
+        target, _ = trk.step(cands(k * SCAN_NS, near, (old[0] + 0.06 * k, old[1])))
+    assert target.status == "tracking" and target.y_m == pytest.approx(1.4, abs=0.15)
 
 
 def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
