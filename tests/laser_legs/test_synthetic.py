@@ -251,6 +251,33 @@ def test_a_half_hidden_leg_completes_a_lone_leg_only_when_asked_and_alone():
     assert all(len(c.legs) == 1 for c in completed.detect(wall).candidates)
 
 
+def test_pair_first_keeps_a_passer_by_s_leg_from_pairing_with_the_target_s():
+    """outside_gate: pair_first (default) -- a passer-by crossing close in front of the target
+    (thesis_5_2_4_two_people, as simulated): one of their legs lies in the target's gate,
+    0.20 m from a target leg, closer than the target's own legs are to each other (0.28 m).
+    The thesis drops the passer-by's other leg first (criterion 3), and the closest legs left
+    pair across the two people; paired over the whole scan (matching), each keeps its own,
+    and only the target's pair lies within the gate."""
+    t1, t2, b1, b2 = (1.60, -0.06), (1.79, -0.27), (1.54, 0.13), (1.38, 0.34)
+    scan = make_scan([(x, y, 0.055) for x, y in (t1, t2, b1, b2)])
+    prediction = (1.69, -0.18)
+
+    def pairs(msg):
+        return [
+            sorted((round(leg.x_m, 1), round(leg.y_m, 1)) for leg in c.legs)
+            for c in msg.candidates
+            if len(c.legs) == 2
+        ]
+
+    literal = {"outside_gate": "drop", "pairing": "closest_first"}  # the thesis, as printed
+    thesis = make_detector("thesis", literal).detect(scan, prediction)
+    assert pairs(thesis) == [[(1.5, 0.1), (1.6, -0.1)]]  # across the two people
+    got = make_detector("thesis").detect(scan, prediction)  # pair_first + matching: default
+    assert pairs(got) == [[(1.6, -0.1), (1.8, -0.3)]] and len(got.candidates) == 1
+    (c,) = got.candidates
+    assert math.hypot(c.x_m - 1.70, c.y_m - -0.17) < 0.06
+
+
 def test_criterion_3_can_keep_the_others_apart_from_the_target():
     """outside_gate: the thesis drops every leg beyond gate_m of the target's prediction;
     keep_apart reports them too, paired only among themselves -- a bystander whose inner leg

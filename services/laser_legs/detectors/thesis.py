@@ -19,10 +19,13 @@
    (identical at 0.5 deg; a 1 deg scanner would otherwise lose most legs beyond 1.5 m).
 6. Criterion 3 (eq. 4-7, tracking stage only): the leg lies within 400 mm of the prediction.
    The digest states it as a distance to the predicted position (used here); eq. 4-7 as
-   printed compares ranges only.
+   printed compares ranges only. By default (``outside_gate: pair_first``, beyond the thesis)
+   it is applied after step 7 to the persons' centres, so that a passer-by's leg inside the
+   gate pairs with its own partner outside it; ``drop`` applies it to the legs, as printed.
 7. A leg is at the middle (centroid) of its cluster, computed from the measured ranges (the
-   criteria see the clipped ones); legs closer than 500 mm pair into one
-   person at their midpoint, closest pairs first; a lone leg is a one-leg person (4.3.3).
+   criteria see the clipped ones); legs closer than 500 mm pair into one person at their
+   midpoint -- the thesis pairs the closest first (``pairing: closest_first``); by default the
+   best matching (``matching``, beyond the thesis); a lone leg is a one-leg person (4.3.3).
 8. Beyond the thesis (``occluded_partner``): a lone leg whose neighbouring run of beams lies
    just behind it — starting where the leg's edge hides it, ending in a jump to something
    farther (or no return), narrower than a leg, within ``pair_distance_m`` — has its other leg
@@ -95,15 +98,20 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     min_width_m: float = 0.080  # thesis 4.3.2 eq. 4-5: 80 mm < W
     max_width_m: float = 0.300  # thesis 4.3.2 eq. 4-5: W < 300 mm
     gate_m: float = 0.400  # thesis 4.3.2 eq. 4-7: 400 mm (criterion 3)
-    outside_gate: Literal["drop", "keep_apart"] = "drop"
-    """Criterion 3's legs farther than gate_m from the target's prediction: ``drop`` them (the
-    thesis: it follows one person), or ``keep_apart`` -- report them too, paired only among
-    themselves, so the target's legs still never pair with anyone else's while everybody
-    else's tracks keep being fed (tracking/people)."""
+    outside_gate: Literal["drop", "keep_apart", "pair_first"] = "pair_first"
+    """Criterion 3's legs farther than gate_m from the target's prediction: ``drop`` them
+    before the pairing (the thesis: it follows one person), ``keep_apart`` -- report them
+    too, paired only among themselves, so the target's legs still never pair with anyone
+    else's while everybody else's tracks keep being fed (tracking/people) -- or
+    ``pair_first`` (default since the tenth session, beyond the thesis): pair every leg of the
+    scan first and keep the persons whose centre lies within gate_m, so a passer-by's leg
+    inside the gate pairs with its partner outside it, not with one of the target's
+    (docs/laser_legs.md, "Criterion 3 after the pairing")."""
     pair_distance_m: float = 0.500  # thesis 4.3.3: legs closer than 500 mm are one person
-    pairing: Literal["closest_first", "matching"] = "closest_first"
-    """thesis 4.3.3 pairs the closest legs first; ``matching`` keeps two people walking side by
-    side apart (core.pair_legs)."""
+    pairing: Literal["closest_first", "matching"] = "matching"
+    """thesis 4.3.3 pairs the closest legs first; ``matching`` (default since the tenth
+    session, with pair_first) keeps two people walking side by side or crossing apart
+    (core.pair_legs)."""
     leg_centre_factor: float = math.pi / 8
     """Beyond the thesis: the cluster's middle (4.3.3) lies on the leg's visible surface, not
     at its centre. Beams evenly spread in angle hit a round leg of radius R evenly across its
@@ -307,6 +315,13 @@ class ClusterLegDetector:
         legs, hidden = self._legs(scan, s.occluded_partner)
         if prediction is None:
             return self._paired(scan, legs, hidden)
+        if s.outside_gate == "pair_first":
+            m = self._paired(scan, legs, hidden)
+            px, py = float(prediction[0]), float(prediction[1])
+            if not (math.isfinite(px) and math.isfinite(py)):
+                return m
+            kept = [c for c in m.candidates if math.hypot(c.x_m - px, c.y_m - py) < s.gate_m]
+            return candidates_message(scan, self.name, kept)
         # criterion 3, eq. 4-7: near the tracker's prediction (keep_apart: the rest apart)
         near = gate(legs, prediction, s.gate_m)
         parts = [self._part(scan, legs, hidden, near)]
