@@ -395,12 +395,15 @@ def pair_legs(
             d = math.hypot(x[j] - xi, y[j] - yi)
             if d < max_distance_m:
                 pairs.append((d, i, j))
-    if pairing == "matching" and pairs:
-        chosen = _best_matching(k, pairs, max_distance_m)
-    elif pairing in PAIRINGS:
-        chosen = _closest_first(k, sorted(pairs))
-    else:
+    if pairing not in PAIRINGS:
         raise ValueError(f"pairing must be one of {PAIRINGS}, not {pairing!r}")
+    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
+    if len(set(ends)) == len(ends):  # no leg with two partners in reach: every rule pairs all
+        chosen = [(i, j) for _, i, j in pairs]
+    elif pairing == "matching":
+        chosen = _best_matching(k, pairs, max_distance_m)
+    else:
+        chosen = _closest_first(k, sorted(pairs))
     paired = {i for pair in chosen for i in pair}
     return sorted([*chosen, *((i,) for i in range(k) if i not in paired)])
 
