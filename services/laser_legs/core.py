@@ -50,6 +50,7 @@ __all__ = [
     "cluster_sum",
     "empty_candidates",
     "gate",
+    "gate_xy",
     "horizon",
     "inscribed_angle_stats",
     "pair_legs",
@@ -355,12 +356,18 @@ class LegSet(msgspec.Struct, frozen=True):
 def gate(legs: LegSet, prediction: Prediction, radius_m: float) -> np.ndarray:
     """Mask of the legs within ``radius_m`` of ``prediction`` (every leg when it is None or
     not finite)."""
+    return gate_xy(legs.x, legs.y, prediction, radius_m)
+
+
+def gate_xy(x: np.ndarray, y: np.ndarray, prediction: Prediction, radius_m: float) -> np.ndarray:
+    """Mask of the points (x, y) within ``radius_m`` of ``prediction`` (every point when it is
+    None or not finite): criterion 3's distance rule, for legs or persons' centres."""
     if prediction is None:
-        return np.ones(len(legs), dtype=bool)
+        return np.ones(len(x), dtype=bool)
     px, py = float(prediction[0]), float(prediction[1])
     if not (math.isfinite(px) and math.isfinite(py)):
-        return np.ones(len(legs), dtype=bool)
-    return np.hypot(legs.x - px, legs.y - py) < radius_m
+        return np.ones(len(x), dtype=bool)
+    return np.hypot(np.asarray(x) - px, np.asarray(y) - py) < radius_m
 
 
 #: Pairing rules (``pairing`` settings): the thesis's greedy one, or the best matching.

@@ -1255,22 +1255,13 @@ class Tracker:
             limit = self.settings.reacquire_max_distance
             if self._had_target and limit is not None and not chosen.distance <= limit:
                 return  # re-acquisition asks for a closer match than verification does
-            if (
-                (held < 0 or searching)  # (dropped just now by this verification: a switch)
-                and self._had_target
-                and self.settings.look_while_lost
-                and not self._in_look_gate(tid)
-            ):
-                return  # not where the lost target can be now (look_gate_m)
-            wide = self.settings.look_wide_max_distance
-            if (
-                (held < 0 or searching)
-                and self._had_target
-                and wide is not None
-                and not chosen.distance <= wide
-                and self._beyond_last_gate(tid)
-            ):
-                return  # far from where the target went: only a close match re-takes it
+            # (held >= 0: dropped just now by this verification -- a switch, taken anywhere)
+            if (held < 0 or searching) and self._had_target:
+                if self.settings.look_while_lost and not self._in_look_gate(tid):
+                    return  # not where the lost target can be now (look_gate_m)
+                wide = self.settings.look_wide_max_distance
+                if wide is not None and not chosen.distance <= wide and self._beyond_last_gate(tid):
+                    return  # far from where the target went: only a close match re-takes it
             if searching:  # the hidden track's person is this one: its coasting guess goes
                 del self.tracks[self.target_id]
                 self.target_id = -1

@@ -668,7 +668,6 @@ def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_matc
             seen.append(target.look_track_id)
         looks[wide] = seen
         assert target.status == "lost"
-        j = k + 20
         for j in range(k + 20, k + 24):  # vision accepts the walker
             walker = (1.0 + 0.06 * (j - k), -1.5)
             still_robot(trk, j * SCAN_NS)

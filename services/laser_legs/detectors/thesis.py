@@ -57,6 +57,7 @@ from ..core import (
     candidates_message,
     empty_candidates,
     gate,
+    gate_xy,
     paired_candidates,
 )
 
@@ -315,12 +316,10 @@ class ClusterLegDetector:
         legs, hidden = self._legs(scan, s.occluded_partner)
         if prediction is None:
             return self._paired(scan, legs, hidden)
-        if s.outside_gate == "pair_first":
-            m = self._paired(scan, legs, hidden)
-            px, py = float(prediction[0]), float(prediction[1])
-            if not (math.isfinite(px) and math.isfinite(py)):
-                return m
-            kept = [c for c in m.candidates if math.hypot(c.x_m - px, c.y_m - py) < s.gate_m]
+        if s.outside_gate == "pair_first":  # criterion 3 on the persons' centres
+            people = self._paired(scan, legs, hidden).candidates
+            near = gate_xy([c.x_m for c in people], [c.y_m for c in people], prediction, s.gate_m)
+            kept = [c for c, ok in zip(people, near.tolist(), strict=True) if ok]
             return candidates_message(scan, self.name, kept)
         # criterion 3, eq. 4-7: near the tracker's prediction (keep_apart: the rest apart)
         near = gate(legs, prediction, s.gate_m)
