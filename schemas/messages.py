@@ -66,10 +66,15 @@ _Probability = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 
 def _ranges_length(r: Array, what: str, items: str) -> int:
     """The length of ``r``, checked: 1-D float32/float64 of 1 to MAX_BEAMS values."""
-    require(len(r.shape) == 1, f"{what} must be 1-D, got shape {r.shape}")
+    # if/raise, not require(): these run on every message, and an f-string argument would be
+    # formatted each time, not only on failure
+    if len(r.shape) != 1:
+        raise ValueError(f"{what} must be 1-D, got shape {r.shape}")
     n = r.shape[0]
-    require(0 < n <= MAX_BEAMS, f"{what} has {n} {items}, expected 1..{MAX_BEAMS}")
-    require(r.dtype in ("<f4", "<f8"), f"{what} must be float32/float64, got {r.dtype}")
+    if not 0 < n <= MAX_BEAMS:
+        raise ValueError(f"{what} has {n} {items}, expected 1..{MAX_BEAMS}")
+    if r.dtype not in ("<f4", "<f8"):
+        raise ValueError(f"{what} must be float32/float64, got {r.dtype}")
     return n
 
 
@@ -97,16 +102,17 @@ class LaserScan(Message, tag="laser_scan", kw_only=True):
     def __post_init__(self) -> None:
         n = _ranges_length(self.ranges, "ranges", "beams")
         require(self.angle_increment_rad != 0.0 or n == 1, "angle_increment_rad is 0")
-        require(
-            abs(self.angle_increment_rad) * (n - 1) <= 2 * math.pi + 1e-6,
-            f"{n} beams of {self.angle_increment_rad} rad span more than a full turn",
-        )
+        if not abs(self.angle_increment_rad) * (n - 1) <= 2 * math.pi + 1e-6:
+            raise ValueError(
+                f"{n} beams of {self.angle_increment_rad} rad span more than a full turn"
+            )
         require(self.range_min_m < self.range_max_m, "range_min_m must be < range_max_m")
         if self.intensities is not None:
-            require(
-                self.intensities.shape == self.ranges.shape,
-                f"intensities shape {self.intensities.shape} != ranges shape {self.ranges.shape}",
-            )
+            if self.intensities.shape != self.ranges.shape:
+                raise ValueError(
+                    f"intensities shape {self.intensities.shape} != "
+                    f"ranges shape {self.ranges.shape}"
+                )
 
     @classmethod
     def from_ranges(
@@ -171,14 +177,15 @@ class Image(Message, tag="image", kw_only=True):
     def __post_init__(self) -> None:
         n = len(self.data)
         if self.encoding == "jpeg":
-            require(0 < n <= MAX_BYTES, f"JPEG payload of {n} bytes")
+            if not 0 < n <= MAX_BYTES:
+                raise ValueError(f"JPEG payload of {n} bytes")
             require(bytes(self.data[:2]) == b"\xff\xd8", "JPEG payload lacks the SOI marker")
         else:
             want = self.width * self.height * _CHANNELS[self.encoding]
-            require(
-                n == want,
-                f"{self.encoding} {self.width}x{self.height} needs {want} bytes, got {n}",
-            )
+            if n != want:
+                raise ValueError(
+                    f"{self.encoding} {self.width}x{self.height} needs {want} bytes, got {n}"
+                )
 
     @classmethod
     def from_array(
@@ -311,10 +318,8 @@ class Horizon(msgspec.Struct, kw_only=True):
 
     def __post_init__(self) -> None:
         n = _ranges_length(self.ranges, "horizon ranges", "bins")
-        require(
-            self.increment_rad * n <= 2 * math.pi + 1e-6,
-            f"{n} bins of {self.increment_rad} rad span more than a full turn",
-        )
+        if not self.increment_rad * n <= 2 * math.pi + 1e-6:
+            raise ValueError(f"{n} bins of {self.increment_rad} rad span more than a full turn")
 
 
 class PersonCandidates(Message, tag="person_candidates", kw_only=True):
@@ -334,10 +339,11 @@ class PersonCandidates(Message, tag="person_candidates", kw_only=True):
     def __post_init__(self) -> None:
         for c in self.candidates:
             for leg in c.legs:
-                require(
-                    leg.last_beam < self.n_beams,
-                    f"leg beam span {leg.first_beam}..{leg.last_beam} outside {self.n_beams} beams",
-                )
+                if leg.last_beam >= self.n_beams:
+                    raise ValueError(
+                        f"leg beam span {leg.first_beam}..{leg.last_beam} "
+                        f"outside {self.n_beams} beams"
+                    )
 
 
 class TargetModel(Message, tag="target_model", kw_only=True):
@@ -411,10 +417,8 @@ class Verification(Message, tag="verification", kw_only=True):
     """Rejection threshold in force (None: always take the best)."""
 
     def __post_init__(self) -> None:
-        require(
-            -1 <= self.chosen < len(self.candidates),
-            f"chosen={self.chosen} with {len(self.candidates)} candidates",
-        )
+        if not -1 <= self.chosen < len(self.candidates):
+            raise ValueError(f"chosen={self.chosen} with {len(self.candidates)} candidates")
         if self.chosen >= 0:
             require(self.candidates[self.chosen].in_view, "chosen candidate is not in view")
 

@@ -547,13 +547,16 @@ def person(
 
     Width: a lone leg's width, or the legs' separation plus half of each leg's width.
     """
-    if x_m is None or y_m is None:
-        x_m = sum(leg.x_m for leg in legs) / len(legs)
-        y_m = sum(leg.y_m for leg in legs) / len(legs)
     if len(legs) == 2:
         a, b = legs
+        if x_m is None or y_m is None:
+            x_m = (a.x_m + b.x_m) / 2
+            y_m = (a.y_m + b.y_m) / 2
         width = math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) + 0.5 * (a.width_m + b.width_m)
     else:
+        if x_m is None or y_m is None:
+            x_m = sum(leg.x_m for leg in legs) / len(legs)
+            y_m = sum(leg.y_m for leg in legs) / len(legs)
         width = legs[0].width_m if legs else 0.0
     return Candidate(
         x_m=x_m,
@@ -585,7 +588,7 @@ def leg_list(legs: LegSet) -> list[Leg]:
 def paired_candidates(
     scan: LaserScan,
     detector: str,
-    legs: LegSet,
+    legs: LegSet | list[Leg],
     pair_distance_m: float,
     two_leg_confidence: float,
     one_leg_confidence: float,
@@ -595,8 +598,8 @@ def paired_candidates(
     """Pair ``legs`` (thesis 4.3.3) and wrap the persons as the wire message. ``partner``:
     given the legs and a lone leg's index, another leg to pair it with, or None (a detector
     that finds legs the pairing cannot, e.g. a half-hidden one); ``pairing``: see
-    :func:`pair_legs`."""
-    wire = leg_list(legs)
+    :func:`pair_legs`. ``legs`` as wire structs are used as they are (not copied)."""
+    wire = legs if isinstance(legs, list) else leg_list(legs)
     groups = pair_legs([w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m, pairing)
     out = []
     for g in groups:

@@ -76,14 +76,13 @@ def _cos_sin(angle_min_rad: float, increment_rad: float, n: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def _chord_table(increment_rad: float, n: int) -> np.ndarray:
+def _chord_list(increment_rad: float, n: int) -> tuple[float, ...]:
     """``4 sin^2((c - 1) dtheta / 2)`` for a run of ``c`` beams (index c = 0..n+1): the squared
     chord of unit radius between a run's end beams."""
     c = np.arange(n + 2, dtype=np.float64)
     t = 2.0 * np.sin(0.5 * np.maximum(c - 1.0, 0.0) * increment_rad)
     t *= t
-    t.flags.writeable = False
-    return t
+    return tuple(t.tolist())
 
 
 class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -158,19 +157,29 @@ class ClusterLegDetector:
 
     def legs(self, scan: LaserScan, prediction: Prediction = None) -> LegSet:
         """The accepted legs (criteria 1-3) of one scan, before pairing."""
-        legs = self._legs(scan, False)[0]
+        wire = self._legs(scan, False)[0]
+        if not wire:
+            return LegSet.empty()
+        legs = LegSet(
+            np.array([g.x_m for g in wire]),
+            np.array([g.y_m for g in wire]),
+            np.array([g.first_beam for g in wire], dtype=np.intp),
+            np.array([g.last_beam for g in wire], dtype=np.intp),
+            np.array([g.width_m for g in wire]),
+        )
         if prediction is None:
             return legs
         return legs.select(gate(legs, prediction, self.settings.gate_m))  # criterion 3
 
-    def _legs(self, scan: LaserScan, partners: bool) -> tuple[LegSet, list[Leg | None]]:
+    def _legs(self, scan: LaserScan, partners: bool) -> tuple[list[Leg], list[Leg | None]]:
         """The legs passing criteria 1-2 of one scan, before criterion 3 (the caller's) and
         pairing, and (``partners``) for each the sliver of a leg it half hides (step 8), or
         None.
 
-        One fused pass with few numpy calls (each costs ~1 us whatever the array size, which
-        dominates at 720 beams): the full-scan work is validity, clipping and the jump cuts;
-        everything after works on per-run arrays, with one mask and one selection at the end.
+        Few numpy calls: each costs ~1-2 us whatever the array size, which dominates at 720
+        beams. numpy does the full-scan work (validity, clipping, the jump cuts, and one
+        ``reduceat`` each for the runs' minima and sums); the per-run tests are plain Python
+        on a scan's few dozen runs, where a float operation costs ~0.03 us.
         ``tests/laser_legs/test_fast_paths.py`` checks it against the step-by-step version
         built from ``core`` helpers.
         """
@@ -179,118 +188,134 @@ class ClusterLegDetector:
         n = raw.shape[0]
         inc_signed = float(scan.angle_increment_rad)
         inc = abs(inc_signed) or _HALF_DEG
-        cssn = _cos_sin(float(scan.angle_min_rad), inc_signed, n)
         # "no return" beams (NaN, inf, 0, out of bounds) -> NO_RETURN; ranges clipped (4.3.1)
         lo = float(scan.range_min_m)
         valid = raw >= lo if lo > 0 else raw > 0.0
         valid &= raw <= scan.range_max_m
-        rpp_raw = np.full(n + 2, NO_RETURN)
+        rpp_raw = np.empty(n + 2)
+        rpp_raw.fill(NO_RETURN)  # not np.full: a Python-level wrapper, ~1 us more
         np.copyto(rpp_raw[1:-1], raw, where=valid)
         # the criteria see clipped ranges; leg positions use the measured ones (a leg seen at
         # 3.52 m is placed there, not on the 3.5 m clip circle)
         rpp = rpp_raw if s.clip_range_m is None else np.minimum(rpp_raw, s.clip_range_m)
-        r = rpp[1:-1]
         # eq. 3-6: a run of beams with |r_k - r_k-1| < 60 mm (no-return beams always cut).
-        # Runs are contiguous: run i is beams cut[i] .. cut[i + 1] - 1, so per-run reductions
-        # need no interleaved bounds; runs of no-return beams have r = NO_RETURN < 0 and fail
-        # every test below.
+        # Runs are contiguous: run i is beams cut[i] .. cut[i + 1] - 1; runs of no-return beams
+        # have r = NO_RETURN < 0 and fail the count test below.
         d = np.subtract(rpp[1:], rpp[:-1])
         np.abs(d, out=d)
         cut = (d >= s.cluster_jump_m).nonzero()[0]
         if cut.shape[0] < 2:
-            return LegSet.empty(), []
-        st = cut[:-1]
-        cnt = cut[1:] - st
-        en = cut[1:] - 1
-        ra, rb = r[st], r[en]
-        rm2 = ra + rb  # twice the mean end range
+            return [], []
+        rp = rpp[1:]  # n + 1 long, so the last cut (<= n) is a valid index
+        cuts = cut.tolist()
+        firsts = rp[cut].tolist()  # firsts[i]: range at run i's first beam
+        lasts = rpp[cut].tolist()  # lasts[i + 1]: range at run i's last beam
+        chord = _chord_list(inc, n)
         # eq. 4-4 scaled to the scanner and range: n beams at range r span n * r * dtheta;
         # at least 3 beams (criterion 1 needs an interior point)
         lo_arc, hi_arc = s.min_points_ref * self._ref_arc, s.max_points_ref * self._ref_arc
-        if s.scale_count_with_range:
-            arc2 = cnt * rm2  # = 2 * arc / dtheta
-            keep = arc2 > 2.0 * lo_arc / inc
-            keep &= arc2 < 2.0 * hi_arc / inc
+        scaled = s.scale_count_with_range
+        if scaled:  # compared as 2 * arc / dtheta = count * (ra + rb)
+            lo_c, hi_c = 2.0 * lo_arc / inc, 2.0 * hi_arc / inc
         else:
-            keep = cnt > lo_arc / (s.ref_range_m * inc)
-            keep &= cnt < hi_arc / (s.ref_range_m * inc)
-            keep &= ra > 0.0  # a run of valid beams
-        keep &= cnt >= 3
-        # criterion 2, eq. 4-6: W^2 = ra^2 + rb^2 - 2 ra rb cos(dtheta_ab)
-        #                           = (ra - rb)^2 + ra rb 4 sin^2(dtheta_ab / 2)  (table)
-        w = ra - rb
-        w *= w
-        w += ra * rb * _chord_table(inc, n)[cnt]
-        np.sqrt(w, out=w)
+            lo_c, hi_c = lo_arc / (s.ref_range_m * inc), hi_arc / (s.ref_range_m * inc)
         # the end beams fall inside the leg's outline, so W falls short of the leg's width by
         # about one beam spacing r * dtheta; the thesis's bounds hold at 0.5 deg, so shift W
         # by the difference in spacing to keep their meaning at other resolutions
         shift = inc - s.ref_increment_rad
-        w_eq = w + rm2 * (0.5 * shift) if abs(shift) > 1e-12 else w
-        keep &= w_eq > s.min_width_m
-        keep &= w_eq < s.max_width_m
+        half_shift = 0.5 * shift if abs(shift) > 1e-12 else 0.0
+        w_lo, w_hi = s.min_width_m, s.max_width_m
+        found = []  # (run, count, width) passing the count and width tests
+        runs = zip(cuts, cuts[1:], firsts, lasts[1:], strict=False)  # cuts, firsts: one more
+        for i, (a, b, ra, rb) in enumerate(runs):
+            c = b - a
+            if c < 3:
+                continue
+            rm2 = ra + rb  # twice the mean end range
+            if scaled:
+                if not lo_c < c * rm2 < hi_c:
+                    continue
+            elif not (lo_c < c < hi_c and ra > 0.0):  # and a run of valid beams
+                continue
+            # criterion 2, eq. 4-6: W^2 = ra^2 + rb^2 - 2 ra rb cos(dtheta_ab)
+            #                           = (ra - rb)^2 + ra rb 4 sin^2(dtheta_ab / 2)  (table)
+            dr = ra - rb
+            w = math.sqrt(dr * dr + ra * rb * chord[c])
+            w_eq = w + rm2 * half_shift if half_shift else w
+            if w_lo < w_eq < w_hi:
+                found.append((i, c, w))
+        if not found:
+            return [], []
         # criterion 1, eq. 3-8: the closest point is not an end point (both ends farther)
-        rp = rpp[1:]  # n + 1 long, so the last cut (<= n) is a valid reduceat index
-        m = np.minimum.reduceat(rp, cut)[:-1]
-        keep &= ra > m
-        keep &= rb > m
-        k = keep.nonzero()[0]
-        if k.shape[0] == 0:
-            return LegSet.empty(), []
+        mins = np.minimum.reduceat(rp, cut).tolist()
+        kept = [f for f in found if firsts[f[0]] > mins[f[0]] < lasts[f[0] + 1]]
+        if not kept:
+            return [], []
         # a leg is the centroid ("middle", 4.3.3) of its cluster
+        cssn = _cos_sin(float(scan.angle_min_rad), inc_signed, n)
         sums = np.add.reduceat(cssn * rpp_raw[1:], cut, axis=1)
+        sx, sy = sums[:, [i for i, _, _ in kept]].tolist()
+        factor = s.leg_centre_factor
+        wire = []
+        for (i, c, w), x, y in zip(kept, sx, sy, strict=True):
+            x /= c
+            y /= c
+            if factor:  # from the visible surface to the leg's centre, along the bearing
+                push = 1 + factor * w / max(math.hypot(x, y), 1e-9)
+                x, y = x * push, y * push
+            wire.append(Leg(x_m=x, y_m=y, first_beam=cuts[i], last_beam=cuts[i + 1] - 1, width_m=w))
         hidden: list[Leg | None] = []
         if partners:
-            hidden = self._hidden_partners(k, keep, st, en, cnt, ra, rb, w, sums)
-        xy = sums[:, k]
-        cnt = cnt[k]
-        xy /= cnt
-        x, y = xy
-        st, en, w = st[k], en[k], w[k]
-        if s.leg_centre_factor:
-            # from the visible surface to the leg's centre, along the bearing
-            r = np.hypot(x, y)
-            push = s.leg_centre_factor * w / np.maximum(r, 1e-9)
-            x, y = x * (1 + push), y * (1 + push)
-        return LegSet(x, y, st, en, w), hidden
+            hidden = self._hidden_partners(kept, cuts, firsts, lasts, chord, sums)
+        return wire, hidden
 
-    def _hidden_partners(self, k, keep, st, en, cnt, ra, rb, w, sums) -> list[Leg | None]:
-        """Step 8: for each kept run ``k[i]``, the sliver of a leg it half hides, or None.
+    def _hidden_partners(self, kept, cuts, firsts, lasts, chord, sums) -> list[Leg | None]:
+        """Step 8: for each kept run ``(i, count, width)``, the sliver of a leg it half hides,
+        or None.
 
-        Runs are contiguous in beam order, so a leg's neighbours are runs ``j = k[i] -+ 1``.
+        Runs are contiguous in beam order, so a leg's neighbours are runs ``j = i -+ 1``.
         A neighbour is a hidden leg's sliver when it is no leg itself, starts behind the leg's
         edge (farther, within ``pair_distance_m``), shows at least ``min_partner_beams`` beams,
         is narrower than ``max_width_m``, and its far side jumps to something farther (or to no
         return): a wall or a larger object behind the leg continues past it instead.
         """
         s = self.settings
-        n_runs = st.shape[0]
+        n_runs = len(cuts) - 1
+        legs = {i for i, _, _ in kept}
+
+        def width(j: int) -> float:  # eq. 4-6, as for the legs
+            dr = firsts[j] - lasts[j + 1]
+            return math.sqrt(dr * dr + firsts[j] * lasts[j + 1] * chord[cuts[j + 1] - cuts[j]])
+
         out: list[Leg | None] = []
-        ra_l, rb_l, keep_l = ra.tolist(), rb.tolist(), keep.tolist()
-        cnt_l, w_l = cnt.tolist(), w.tolist()
-        for i in k.tolist():
+        for i, c_i, w_i in kept:
             best, best_d = None, math.inf
             for j, far in ((i + 1, i + 2), (i - 1, i - 2)):  # the run right, or left, of it
-                if not 0 <= j < n_runs or keep_l[j] or cnt_l[j] < s.min_partner_beams:
+                if not 0 <= j < n_runs or j in legs:
+                    continue
+                c_j = cuts[j + 1] - cuts[j]
+                if c_j < s.min_partner_beams:
                     continue
                 right = j > i
-                near_edge = rb_l[i] if right else ra_l[i]  # the leg's range at its edge
+                near_edge = lasts[i + 1] if right else firsts[i]  # the leg's range at its edge
                 # the sliver's range at the leg's edge and at its far end
-                start, end = (ra_l[j], rb_l[j]) if right else (rb_l[j], ra_l[j])
+                start, end = (firsts[j], lasts[j + 1]) if right else (lasts[j + 1], firsts[j])
                 if not (near_edge < start <= near_edge + s.pair_distance_m):
                     continue
                 # the next run's range beyond the sliver (-1: none, as no return)
-                beyond = (ra_l[far] if right else rb_l[far]) if 0 <= far < n_runs else -1.0
+                beyond = -1.0
+                if 0 <= far < n_runs:
+                    beyond = firsts[far] if right else lasts[far + 1]
                 if 0 < beyond <= end:  # something nearer (or as near) continues past it
                     continue
-                if not w_l[j] < s.max_width_m:
+                if not width(j) < s.max_width_m:
                     continue
-                cx, cy = (sums[:, j] / cnt_l[j]).tolist()
-                lx, ly = (sums[:, i] / cnt_l[i]).tolist()
+                cx, cy = (sums[:, j] / c_j).tolist()
+                lx, ly = (sums[:, i] / c_i).tolist()
                 d = math.hypot(cx - lx, cy - ly)
                 if d < s.pair_distance_m and d < best_d:
                     r = math.hypot(cx, cy)
-                    push = 0.5 * w_l[i] / max(r, 1e-9)  # half a leg behind the sliver
+                    push = 0.5 * w_i / max(r, 1e-9)  # half a leg behind the sliver
                     best, best_d = (cx * (1 + push), cy * (1 + push), j), d
             if best is None:
                 out.append(None)
@@ -298,7 +323,7 @@ class ClusterLegDetector:
                 bx, by, j = best
                 # its width: the visible leg's (only a sliver of it shows)
                 out.append(
-                    Leg(x_m=bx, y_m=by, first_beam=int(st[j]), last_beam=int(en[j]), width_m=w_l[i])
+                    Leg(x_m=bx, y_m=by, first_beam=cuts[j], last_beam=cuts[j + 1] - 1, width_m=w_i)
                 )
         return out
 
@@ -322,21 +347,21 @@ class ClusterLegDetector:
             kept = [c for c, ok in zip(people, near.tolist(), strict=True) if ok]
             return candidates_message(scan, self.name, kept)
         # criterion 3, eq. 4-7: near the tracker's prediction (keep_apart: the rest apart)
-        near = gate(legs, prediction, s.gate_m)
-        parts = [self._part(scan, legs, hidden, near)]
+        near = gate_xy([g.x_m for g in legs], [g.y_m for g in legs], prediction, s.gate_m)
+        parts = [self._part(scan, legs, hidden, near.tolist())]
         if s.outside_gate == "keep_apart":
-            parts.append(self._part(scan, legs, hidden, ~near))
+            parts.append(self._part(scan, legs, hidden, (~near).tolist()))
             return candidates_message(scan, self.name, [c for m in parts for c in m.candidates])
         return parts[0]
 
-    def _part(self, scan: LaserScan, legs: LegSet, hidden: list[Leg | None], keep: np.ndarray):
+    def _part(self, scan: LaserScan, legs: list[Leg], hidden: list[Leg | None], keep: list[bool]):
         """The persons among the legs ``keep`` selects, paired among themselves."""
-        mine = [h for h, ok in zip(hidden, keep.tolist(), strict=True) if ok] if hidden else []
-        return self._paired(scan, legs.select(keep), mine)
+        mine = [h for h, ok in zip(hidden, keep, strict=True) if ok] if hidden else []
+        return self._paired(scan, [g for g, ok in zip(legs, keep, strict=True) if ok], mine)
 
-    def _paired(self, scan: LaserScan, legs, hidden: list[Leg | None]) -> PersonCandidates:
+    def _paired(self, scan: LaserScan, legs: list[Leg], hidden: list[Leg | None]):
         s = self.settings
-        if len(legs) == 0:
+        if not legs:
             return empty_candidates(scan, self.name)
 
         def partner(wire: list[Leg], i: int) -> Leg | None:  # step 8
