@@ -107,12 +107,10 @@ class LaserScan(Message, tag="laser_scan", kw_only=True):
                 f"{n} beams of {self.angle_increment_rad} rad span more than a full turn"
             )
         require(self.range_min_m < self.range_max_m, "range_min_m must be < range_max_m")
-        if self.intensities is not None:
-            if self.intensities.shape != self.ranges.shape:
-                raise ValueError(
-                    f"intensities shape {self.intensities.shape} != "
-                    f"ranges shape {self.ranges.shape}"
-                )
+        if self.intensities is not None and self.intensities.shape != self.ranges.shape:
+            raise ValueError(
+                f"intensities shape {self.intensities.shape} != ranges shape {self.ranges.shape}"
+            )
 
     @classmethod
     def from_ranges(
