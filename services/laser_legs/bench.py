@@ -6,10 +6,12 @@ is the figure, the minimum shows the floor). Also the robot-body filter the node
 of every detector (``self_filter``), on a stream of that room turning past a 20-beam body, and
 the ``horizon`` the node sends with every scan's candidates.
 
-The last row times one numpy ufunc call on the scan's 720 float64 ranges (``np.add``), the unit
-the detectors' cost is made of: this shared machine's speed wanders by +-30 % from hour to hour,
-and a detector's time divided by this reference moves far less (the ``thesis`` detector is
-about 60 such calls).
+Each detector call alternates with one reference call: a numpy ufunc on the scan's 720 float64
+ranges (``np.add``), the unit the detectors' cost is made of. This shared machine's speed
+wanders by +-30 % (at times 2x) from one second to the next; a detector's median divided by the
+reference's median over the same calls moves far less (``median / reference``: the ``thesis``
+detector costs about 40-60 such calls). The last row is the reference over every detector's
+calls.
 """
 
 from __future__ import annotations
@@ -55,11 +57,35 @@ def _timed(call, repeats: int) -> tuple[float, float]:
     return float(np.median(ts) * 1e6), float(ts.min() * 1e6)
 
 
-def time_detector(name: str, scan, repeats: int = 3000, warmup: int = 200) -> tuple[float, float]:
+def reference_call(scan):
+    """One ``np.add`` of two float64 arrays of the scan's length into a preallocated output: a
+    numpy call's fixed cost, which dominates the detectors' time at this size."""
+    a = scan.ranges.numpy().astype(np.float64)
+    out = np.empty_like(a)
+    return lambda: np.add(a, a, out=out)
+
+
+def time_detector(
+    name: str, scan, repeats: int = 3000, warmup: int = 200
+) -> tuple[float, float, np.ndarray]:
+    """(median µs, min µs, the reference call's times in s) of ``detect`` on ``scan``, each
+    detector call followed by one reference call."""
     det = make_detector(name)
+    ref = reference_call(scan)
     for _ in range(warmup):
         det.detect(scan)
-    return _timed(lambda _i: det.detect(scan), repeats)
+        ref()
+    clock = time.perf_counter
+    ts = np.empty(repeats)
+    rs = np.empty(repeats)
+    for i in range(repeats):
+        t0 = clock()
+        det.detect(scan)
+        t1 = clock()
+        ref()
+        rs[i] = clock() - t1
+        ts[i] = t1 - t0
+    return float(np.median(ts) * 1e6), float(ts.min() * 1e6), rs
 
 
 def time_self_filter(scan, repeats: int = 3000) -> tuple[float, float]:
@@ -91,16 +117,6 @@ def time_horizon(scan, repeats: int = 3000) -> tuple[float, float]:
     return _timed(lambda _i: horizon(scan), repeats)
 
 
-def time_reference(scan, repeats: int = 3000) -> tuple[float, float]:
-    """One ``np.add`` of two 720-float64 arrays into a preallocated output: a numpy call's
-    fixed cost, which dominates the detectors' time at this size."""
-    a = scan.ranges.numpy().astype(np.float64)
-    out = np.empty_like(a)
-    for _ in range(200):
-        np.add(a, a, out=out)
-    return _timed(lambda _i: np.add(a, a, out=out), repeats)
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--beams", type=int, default=720, help="beams of the bench scan (default 720)")
@@ -110,21 +126,24 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = p.parse_args(argv)
     scan = bench_scan(args.beams)
-    ref, ref_lo = time_reference(scan, args.repeats)
+    refs = []
     sys.stdout.write(
         f"| detector | median us/scan ({args.beams} beams) | min us | median / reference |\n"
         "|---|---|---|---|\n"
     )
     for name in DETECTORS:
-        med, lo = time_detector(name, scan, args.repeats, args.warmup)
-        sys.stdout.write(f"| {name} | {med:.0f} | {lo:.0f} | {med / ref:.0f} |\n")
+        med, lo, ref = time_detector(name, scan, args.repeats, args.warmup)
+        refs.append(ref)
+        ratio = med / (float(np.median(ref)) * 1e6)
+        sys.stdout.write(f"| {name} | {med:.0f} | {lo:.0f} | {ratio:.0f} |\n")
     med, lo = time_self_filter(scan, args.repeats)
     sys.stdout.write(f"| (robot-body filter, node default) | +{med:.0f} | +{lo:.0f} |\n")
     med, lo = time_horizon(scan, args.repeats)
     sys.stdout.write(f"| (horizon for the tracker, node default) | +{med:.0f} | +{lo:.0f} |\n")
+    ref = np.concatenate(refs) * 1e6
     sys.stdout.write(
-        f"| (reference: one numpy call on {scan.ranges.shape[0]} floats) | {ref:.2f} | "
-        f"{ref_lo:.2f} | 1 |\n"
+        f"| (reference: one numpy call on {scan.ranges.shape[0]} floats) | "
+        f"{float(np.median(ref)):.2f} | {float(ref.min()):.2f} | 1 |\n"
     )
     return 0
 
