@@ -27,7 +27,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import msgspec
 import numpy as np
@@ -38,6 +38,7 @@ from followbot.schemas import Array, Candidate, Horizon, LaserScan, Leg, PersonC
 __all__ = [
     "NO_RETURN",
     "PAIRINGS",
+    "Anchor",
     "Beams",
     "Clusters",
     "LegDetector",
@@ -378,8 +379,29 @@ PAIRINGS = ("closest_first", "matching")
 MAX_MATCHED_GROUP = 12
 
 
+class Anchor(NamedTuple):
+    """Where the tracked target should be, for :func:`pair_legs` (``matching``) to prefer the
+    grouping of legs that has a person there (beyond the thesis; the ``thesis`` detector's
+    ``anchor_weight``)."""
+
+    x_m: float
+    y_m: float
+    weight: float
+    """Metres of pair weight (``max_distance_m - d``) one metre nearer the anchor is worth."""
+    gate_m: float
+    """Persons farther than this from the anchor count as this far (criterion 3's gate): far
+    from the target, the anchor prefers nothing."""
+    lone_leg_m: float
+    """A lone leg's distance to the anchor counts this much less: a person's centre lies
+    about half a stride from a leg seen alone."""
+
+
 def pair_legs(
-    x: list[float], y: list[float], max_distance_m: float, pairing: str = "closest_first"
+    x: list[float],
+    y: list[float],
+    max_distance_m: float,
+    pairing: str = "closest_first",
+    anchor: Anchor | None = None,
 ) -> list[tuple[int, ...]]:
     """Group legs into persons, each leg used once; ``(i, j)`` for two legs closer than
     ``max_distance_m`` and ``(i,)`` for a lone leg, ordered by their first leg.
@@ -391,6 +413,15 @@ def pair_legs(
     than to its own partner: closest first pairs the two inner legs into a phantom person
     between them and leaves the outer legs alone; the matching keeps both people. Exact per
     group of legs within reach of each other (up to :data:`MAX_MATCHED_GROUP` legs).
+
+    ``anchor`` (``matching`` only): the tracked target's predicted position. The grouping then
+    maximises the pair weights minus ``anchor.weight`` times the distance from the anchor to
+    the nearest person of the grouping (see :class:`Anchor`). When a passer-by walks just in
+    front of the target, the target's far leg is hidden behind the passer-by's near leg, and
+    that leg is often closer to the target's near leg than to the passer-by's far leg: the
+    matching alone then pairs the two people's near legs (a cross pair ~0.2 m off the target,
+    towards the passer-by); with the anchor it keeps the passer-by's legs together and the
+    target's near leg alone, where the target is.
 
     Plain Python: a scan has a handful of legs, and numpy's per-call cost would dominate.
     """
@@ -404,15 +435,65 @@ def pair_legs(
                 pairs.append((d, i, j))
     if pairing not in PAIRINGS:
         raise ValueError(f"pairing must be one of {PAIRINGS}, not {pairing!r}")
-    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
-    if len(set(ends)) == len(ends):  # no leg with two partners in reach: every rule pairs all
-        chosen = [(i, j) for _, i, j in pairs]
-    elif pairing == "matching":
-        chosen = _best_matching(k, pairs, max_distance_m)
-    else:
-        chosen = _closest_first(k, sorted(pairs))
+    chosen = _pairs_of(k, pairs, max_distance_m, pairing)
+    if anchor is not None and pairing == "matching" and pairs:
+        chosen = _anchored(x, y, k, pairs, chosen, max_distance_m, anchor)
     paired = {i for pair in chosen for i in pair}
     return sorted([*chosen, *((i,) for i in range(k) if i not in paired)])
+
+
+def _pairs_of(
+    k: int, pairs: list[tuple[float, int, int]], max_distance_m: float, pairing: str
+) -> list[tuple[int, int]]:
+    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
+    if len(set(ends)) == len(ends):  # no leg with two partners in reach: every rule pairs all
+        return [(i, j) for _, i, j in pairs]
+    if pairing == "matching":
+        return _best_matching(k, pairs, max_distance_m)
+    return _closest_first(k, sorted(pairs))
+
+
+def _anchored(
+    x: list[float],
+    y: list[float],
+    k: int,
+    pairs: list[tuple[float, int, int]],
+    chosen: list[tuple[int, int]],
+    max_distance_m: float,
+    a: Anchor,
+) -> list[tuple[int, int]]:
+    """The grouping maximising the pair weights minus ``a.weight`` times the distance from the
+    anchor to its nearest person (capped at ``a.gate_m``): each leg alone and each pair in
+    reach is tried as the person nearest the anchor, with the best matching of the other legs;
+    ``chosen`` (the plain best matching) stays unless another grouping scores higher."""
+    weight = {(i, j): max_distance_m - d for d, i, j in pairs}
+
+    def cost(person: tuple[int, ...]) -> float:
+        if len(person) == 2:
+            i, j = person
+            d = math.hypot((x[i] + x[j]) / 2 - a.x_m, (y[i] + y[j]) / 2 - a.y_m)
+        else:
+            d = max(0.0, math.hypot(x[person[0]] - a.x_m, y[person[0]] - a.y_m) - a.lone_leg_m)
+        return min(d, a.gate_m)
+
+    def value(groups: list[tuple[int, int]], nearest: float) -> float:
+        return sum(weight[g] for g in groups) - a.weight * nearest
+
+    paired = {i for g in chosen for i in g}
+    persons = [*chosen, *((i,) for i in range(k) if i not in paired)]
+    best, best_value = chosen, value(chosen, min(cost(g) for g in persons))
+    for person in [*((i,) for i in range(k)), *((i, j) for _, i, j in pairs)]:
+        c = cost(person)
+        if c >= a.gate_m:
+            continue
+        rest = [p for p in pairs if p[1] not in person and p[2] not in person]
+        groups = _pairs_of(k, rest, max_distance_m, "matching")
+        if len(person) == 2:
+            groups = [person, *groups]
+        v = value(groups, c)  # the person's cost bounds the grouping's nearest from above
+        if v > best_value + 1e-12:
+            best, best_value = groups, v
+    return best
 
 
 def _closest_first(k: int, pairs: list[tuple[float, int, int]]) -> list[tuple[int, int]]:
@@ -594,13 +675,17 @@ def paired_candidates(
     one_leg_confidence: float,
     partner: Callable[[list[Leg], int], Leg | None] | None = None,
     pairing: str = "closest_first",
+    anchor: Anchor | None = None,
 ) -> PersonCandidates:
     """Pair ``legs`` (thesis 4.3.3) and wrap the persons as the wire message. ``partner``:
     given the legs and a lone leg's index, another leg to pair it with, or None (a detector
     that finds legs the pairing cannot, e.g. a half-hidden one); ``pairing``: see
-    :func:`pair_legs`. ``legs`` as wire structs are used as they are (not copied)."""
+    :func:`pair_legs`, as ``anchor``. ``legs`` as wire structs are used as they are (not
+    copied)."""
     wire = legs if isinstance(legs, list) else leg_list(legs)
-    groups = pair_legs([w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m, pairing)
+    groups = pair_legs(
+        [w.x_m for w in wire], [w.y_m for w in wire], pair_distance_m, pairing, anchor
+    )
     out = []
     for g in groups:
         other = None if len(g) == 2 or partner is None else partner(wire, g[0])

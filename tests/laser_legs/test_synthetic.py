@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from followbot.schemas import PersonCandidates, decode, encode
 from followbot.services.laser_legs import DETECTORS, make_detector
-from followbot.services.laser_legs.core import pair_legs
+from followbot.services.laser_legs.core import Anchor, pair_legs
 from followbot.services.laser_legs.detectors import ClusterLegDetector, ThesisSettings
 from followbot.services.laser_legs.scene import make_scan, person_legs
 
@@ -175,6 +175,78 @@ def test_pair_legs_matching_is_a_best_pairing(points):
             for ps in combinations(edges, n):
                 if len({i for p in ps for i in p}) == 2 * n:
                     assert value(ps) <= value(pairs) + 1e-9
+
+
+def test_anchor_keeps_a_passer_by_s_legs_together_in_front_of_the_target():
+    # thesis_5_2_4_side_by_side seed 3, 12.00 s: the target's near leg, the passer-by's near
+    # leg (the target's far leg hidden behind it) and the passer-by's far leg; the target is
+    # at (1.59, 0.15)
+    x, y = [1.54, 1.29, 1.00], [0.05, 0.22, 0.32]
+    assert pair_legs(x, y, 0.5, "matching") == [(0, 1), (2,)]  # a cross pair
+    anchor = Anchor(1.58, 0.15, weight=1.0, gate_m=0.4, lone_leg_m=0.15)
+    assert pair_legs(x, y, 0.5, "matching", anchor) == [(0,), (1, 2)]
+    # far from every leg the anchor changes nothing; closest first ignores it
+    far = Anchor(3.0, -2.0, weight=1.0, gate_m=0.4, lone_leg_m=0.15)
+    assert pair_legs(x, y, 0.5, "matching", far) == [(0, 1), (2,)]
+    assert pair_legs(x, y, 0.5, "closest_first", anchor) == [(0, 1), (2,)]
+    # a person alone keeps its two legs paired when the prediction is 0.1 m off
+    near = Anchor(2.1, 0.0, weight=1.0, gate_m=0.4, lone_leg_m=0.15)
+    assert pair_legs([2.0, 2.0], [-0.15, 0.15], 0.5, "matching", near) == [(0, 1)]
+
+
+def test_thesis_anchor_weight_gives_the_target_its_own_leg_not_a_cross_pair():
+    # the scene above as a scan: the target's far leg is hidden behind the passer-by's near one
+    circles = [(1.58, 0.05, 0.06), (1.72, 0.25, 0.06), (1.33, 0.22, 0.06), (1.04, 0.32, 0.06)]
+    scan = make_scan(circles, [(4, -4, 4, 4)])
+    prediction = (1.64, 0.15)
+
+    def target(settings):
+        found = ClusterLegDetector(settings).detect(scan, prediction).candidates
+        return [[(round(g.x_m, 2), round(g.y_m, 2)) for g in c.legs] for c in found]
+
+    assert target(ThesisSettings()) == [[(1.57, 0.05), (1.32, 0.22)]]  # the cross pair
+    assert target(ThesisSettings(anchor_weight=1.0)) == [[(1.57, 0.05)]]
+    with pytest.raises(ValueError, match="anchor"):
+        ThesisSettings(anchor_weight=-1.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(0, 1.5), st.floats(0, 1.5)), max_size=7),
+    st.tuples(st.floats(0, 1.5), st.floats(0, 1.5)),
+    st.floats(0.0, 3.0),
+)
+def test_anchored_pairing_is_the_best_grouping_for_its_objective(points, at, weight):
+    from itertools import combinations
+
+    x = [p[0] for p in points]
+    y = [p[1] for p in points]
+    a = Anchor(at[0], at[1], weight=weight, gate_m=0.4, lone_leg_m=0.15)
+    groups = pair_legs(x, y, 0.5, "matching", a)
+    assert sorted(i for g in groups for i in g) == list(range(len(points)))  # each leg once
+    assert all(math.dist(points[g[0]], points[g[1]]) < 0.5 for g in groups if len(g) == 2)
+
+    def objective(pairs):
+        paired = {i for p in pairs for i in p}
+        persons = [*pairs, *((i,) for i in range(len(points)) if i not in paired)]
+        costs = []
+        for g in persons:
+            cx = sum(x[i] for i in g) / len(g)
+            cy = sum(y[i] for i in g) / len(g)
+            d = math.dist((cx, cy), at) - (a.lone_leg_m if len(g) == 1 else 0.0)
+            costs.append(min(max(d, 0.0), a.gate_m))
+        nearest = min(costs, default=a.gate_m)
+        return sum(0.5 - math.dist(points[i], points[j]) for i, j in pairs) - weight * nearest
+
+    mine = objective([g for g in groups if len(g) == 2])
+    edges = [
+        (i, j) for i, j in combinations(range(len(points)), 2)
+        if math.dist(points[i], points[j]) < 0.5
+    ]  # fmt: skip
+    for n in range(len(points) // 2 + 1):
+        for ps in combinations(edges, n):
+            if len({i for p in ps for i in p}) == 2 * n:
+                assert objective(list(ps)) <= mine + 1e-9
 
 
 def test_make_detector_by_name_and_settings():

@@ -51,6 +51,7 @@ from followbot.schemas import LaserScan, Leg, PersonCandidates
 
 from ..core import (
     NO_RETURN,
+    Anchor,
     LegSet,
     Prediction,
     beam_geometry,
@@ -112,6 +113,15 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """thesis 4.3.3 pairs the closest legs first; ``matching`` (default since the tenth
     session, with pair_first) keeps two people walking side by side or crossing apart
     (core.pair_legs)."""
+    anchor_weight: float = 0.0
+    """Beyond the thesis, with ``pairing: matching`` and ``outside_gate: pair_first``: prefer
+    the grouping of the scan's legs that has a person near the tracked target's prediction --
+    metres of pair weight (``pair_distance_m - d``) per metre nearer (core.Anchor,
+    core.pair_legs). Where a passer-by walks just in front of the target, the matching alone
+    pairs the two people's near legs (docs/laser_legs.md, "Pairing near the target"). 0: off."""
+    anchor_lone_leg_m: float = 0.15
+    """A lone leg's distance to the prediction counts this much less (a person's centre lies
+    ~0.13 m from a leg seen alone in the simulator)."""
     leg_centre_factor: float = math.pi / 8
     """Beyond the thesis: the cluster's middle (4.3.3) lies on the leg's visible surface, not
     at its centre. Beams evenly spread in angle hit a round leg of radius R evenly across its
@@ -139,6 +149,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
                 raise ValueError(f"{name} must be > 0")
         if not 0 <= self.leg_centre_factor <= 1:
             raise ValueError("leg_centre_factor must be in [0, 1]")
+        if not (self.anchor_weight >= 0 and self.anchor_lone_leg_m >= 0):
+            raise ValueError("anchor_weight and anchor_lone_leg_m must be >= 0")
         if not self.pair_distance_m >= 0:
             raise ValueError("pair_distance_m must be >= 0")
         if self.min_partner_beams < 1:
@@ -342,7 +354,11 @@ class ClusterLegDetector:
         if prediction is None:
             return self._paired(scan, legs, hidden)
         if s.outside_gate == "pair_first":  # criterion 3 on the persons' centres
-            people = self._paired(scan, legs, hidden).candidates
+            anchor = None
+            px, py = float(prediction[0]), float(prediction[1])
+            if s.anchor_weight and math.isfinite(px) and math.isfinite(py):
+                anchor = Anchor(px, py, s.anchor_weight, s.gate_m, s.anchor_lone_leg_m)
+            people = self._paired(scan, legs, hidden, anchor).candidates
             near = gate_xy([c.x_m for c in people], [c.y_m for c in people], prediction, s.gate_m)
             kept = [c for c, ok in zip(people, near.tolist(), strict=True) if ok]
             return candidates_message(scan, self.name, kept)
@@ -359,7 +375,13 @@ class ClusterLegDetector:
         mine = [h for h, ok in zip(hidden, keep, strict=True) if ok] if hidden else []
         return self._paired(scan, [g for g, ok in zip(legs, keep, strict=True) if ok], mine)
 
-    def _paired(self, scan: LaserScan, legs: list[Leg], hidden: list[Leg | None]):
+    def _paired(
+        self,
+        scan: LaserScan,
+        legs: list[Leg],
+        hidden: list[Leg | None],
+        anchor: Anchor | None = None,
+    ):
         s = self.settings
         if not legs:
             return empty_candidates(scan, self.name)
@@ -376,4 +398,5 @@ class ClusterLegDetector:
             s.one_leg_confidence,
             partner if any(h is not None for h in hidden) else None,
             s.pairing,
+            anchor,
         )
