@@ -189,9 +189,9 @@ def test_anchor_keeps_a_passer_by_s_legs_together_in_front_of_the_target():
     far = Anchor(3.0, -2.0, weight=1.0, gate_m=0.4, lone_leg_m=0.15)
     assert pair_legs(x, y, 0.5, "matching", far) == [(0, 1), (2,)]
     assert pair_legs(x, y, 0.5, "closest_first", anchor) == [(0, 1), (2,)]
-    # a person alone keeps its two legs paired when the prediction is 0.1 m off
-    near = Anchor(2.1, 0.0, weight=1.0, gate_m=0.4, lone_leg_m=0.15)
-    assert pair_legs([2.0, 2.0], [-0.15, 0.15], 0.5, "matching", near) == [(0, 1)]
+    # a person alone keeps its two legs paired, even when the prediction lags onto one leg
+    for at in (Anchor(2.1, 0.0, 1.0, 0.4, 0.15), Anchor(2.0, 0.2, 5.0, 0.4, 0.15)):
+        assert pair_legs([2.0, 2.0], [-0.2, 0.2], 0.5, "matching", at) == [(0, 1)]
 
 
 def test_thesis_anchor_weight_gives_the_target_its_own_leg_not_a_cross_pair():
@@ -204,8 +204,8 @@ def test_thesis_anchor_weight_gives_the_target_its_own_leg_not_a_cross_pair():
         found = ClusterLegDetector(settings).detect(scan, prediction).candidates
         return [[(round(g.x_m, 2), round(g.y_m, 2)) for g in c.legs] for c in found]
 
-    assert target(ThesisSettings()) == [[(1.57, 0.05), (1.32, 0.22)]]  # the cross pair
-    assert target(ThesisSettings(anchor_weight=1.0)) == [[(1.57, 0.05)]]
+    assert target(ThesisSettings(anchor_weight=0.0)) == [[(1.57, 0.05), (1.32, 0.22)]]  # cross
+    assert target(ThesisSettings()) == [[(1.57, 0.05)]]  # the default anchors the pairing
     with pytest.raises(ValueError, match="anchor"):
         ThesisSettings(anchor_weight=-1.0)
 
@@ -239,11 +239,13 @@ def test_anchored_pairing_is_the_best_grouping_for_its_objective(points, at, wei
         return sum(0.5 - math.dist(points[i], points[j]) for i, j in pairs) - weight * nearest
 
     mine = objective([g for g in groups if len(g) == 2])
+    fewest = sum(len(g) == 2 for g in pair_legs(x, y, 0.5, "matching"))
+    assert sum(len(g) == 2 for g in groups) >= fewest  # never fewer pairs than the matching
     edges = [
         (i, j) for i, j in combinations(range(len(points)), 2)
         if math.dist(points[i], points[j]) < 0.5
     ]  # fmt: skip
-    for n in range(len(points) // 2 + 1):
+    for n in range(fewest, len(points) // 2 + 1):
         for ps in combinations(edges, n):
             if len({i for p in ps for i in p}) == 2 * n:
                 assert objective(list(ps)) <= mine + 1e-9

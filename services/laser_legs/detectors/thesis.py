@@ -113,12 +113,14 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """thesis 4.3.3 pairs the closest legs first; ``matching`` (default since the tenth
     session, with pair_first) keeps two people walking side by side or crossing apart
     (core.pair_legs)."""
-    anchor_weight: float = 0.0
-    """Beyond the thesis, with ``pairing: matching`` and ``outside_gate: pair_first``: prefer
-    the grouping of the scan's legs that has a person near the tracked target's prediction --
+    anchor_weight: float = 1.0
+    """Beyond the thesis (default since the eleventh session), with ``pairing: matching`` and
+    ``outside_gate: pair_first``: among the groupings of the scan's legs with as many pairs as
+    the matching's, prefer the one with a person near the tracked target's prediction --
     metres of pair weight (``pair_distance_m - d``) per metre nearer (core.Anchor,
     core.pair_legs). Where a passer-by walks just in front of the target, the matching alone
-    pairs the two people's near legs (docs/laser_legs.md, "Pairing near the target"). 0: off."""
+    pairs the two people's near legs (docs/laser_legs.md, "Pairing near the target"). 0: off
+    (the tenth session's pairing)."""
     anchor_lone_leg_m: float = 0.15
     """A lone leg's distance to the prediction counts this much less (a person's centre lies
     ~0.13 m from a leg seen alone in the simulator)."""
