@@ -453,6 +453,11 @@ def _pairs_of(
     return _closest_first(k, sorted(pairs))
 
 
+#: Most legs near the anchor whose groupings :func:`pair_legs` enumerates (an anchor among
+#: more leaves the plain matching; 8 legs have at most 764 groupings, a scan's 2-4 a handful).
+MAX_ANCHORED_LEGS = 8
+
+
 def _anchored(
     x: list[float],
     y: list[float],
@@ -464,12 +469,19 @@ def _anchored(
 ) -> list[tuple[int, int]]:
     """The grouping maximising the pair weights minus ``a.weight`` times the distance from the
     anchor to its nearest person (capped at ``a.gate_m``), among those with at least as many
-    pairs as ``chosen`` (the plain best matching): each leg alone and each pair in reach is
-    tried as the person nearest the anchor, with the best matching of the other legs;
-    ``chosen`` stays unless another grouping scores higher. The anchor only chooses *which*
-    legs pair, never fewer pairs: splitting a person's own two legs because the prediction
-    lags towards one of them biased every track (RMSE up in all 15 scenarios)."""
+    pairs as ``chosen`` (the plain best matching), which stays unless another grouping scores
+    higher. The anchor only chooses *which* legs pair, never fewer pairs: splitting a person's
+    own two legs because the prediction lags towards one of them biased every track (RMSE up
+    in all 15 scenarios).
+
+    Exact: every grouping of the legs within reach (transitively) of a leg that can belong to
+    a person inside the gate is scored; the other legs keep ``chosen``'s grouping. More than
+    :data:`MAX_ANCHORED_LEGS` such legs: ``chosen``."""
     weight = {(i, j): max_distance_m - d for d, i, j in pairs}
+    near: list[list[int]] = [[] for _ in range(k)]
+    for _, i, j in pairs:
+        near[i].append(j)
+        near[j].append(i)
 
     def cost(person: tuple[int, ...]) -> float:
         if len(person) == 2:
@@ -479,24 +491,48 @@ def _anchored(
             d = max(0.0, math.hypot(x[person[0]] - a.x_m, y[person[0]] - a.y_m) - a.lone_leg_m)
         return min(d, a.gate_m)
 
-    def value(groups: list[tuple[int, int]], nearest: float) -> float:
+    # the legs whose grouping can put a person inside the gate, and all legs in reach of them
+    reach = a.gate_m + max(max_distance_m / 2, a.lone_leg_m)
+    todo = [i for i in range(k) if math.hypot(x[i] - a.x_m, y[i] - a.y_m) < reach]
+    group = set(todo)
+    while todo:
+        for j in near[todo.pop()]:
+            if j not in group:
+                group.add(j)
+                todo.append(j)
+    if not group or len(group) > MAX_ANCHORED_LEGS:
+        return chosen
+    outside = [g for g in chosen if g[0] not in group]
+    paired = {i for g in chosen for i in g}
+    rest = [*outside, *((i,) for i in range(k) if i not in group and i not in paired)]
+    nearest_outside = min((cost(g) for g in rest), default=a.gate_m)
+    inside = [g for g in chosen if g[0] in group]
+
+    def value(groups: list[tuple[int, int]]) -> float:
+        legs = {i for g in groups for i in g}
+        lone = [(i,) for i in group if i not in legs]
+        nearest = min([nearest_outside, *(cost(g) for g in groups), *(cost(g) for g in lone)])
         return sum(weight[g] for g in groups) - a.weight * nearest
 
-    paired = {i for g in chosen for i in g}
-    persons = [*chosen, *((i,) for i in range(k) if i not in paired)]
-    best, best_value = chosen, value(chosen, min(cost(g) for g in persons))
-    for person in [*((i,) for i in range(k)), *((i, j) for _, i, j in pairs)]:
-        c = cost(person)
-        if c >= a.gate_m:
-            continue
-        rest = [p for p in pairs if p[1] not in person and p[2] not in person]
-        groups = _pairs_of(k, rest, max_distance_m, "matching")
-        if len(person) == 2:
-            groups = [person, *groups]
-        v = value(groups, c)  # the person's cost bounds the grouping's nearest from above
-        if len(groups) >= len(chosen) and v > best_value + 1e-12:
-            best, best_value = groups, v
-    return best
+    def groupings(free: list[int]):
+        """Every grouping of the legs ``free`` (ascending) into pairs in reach and lone legs."""
+        if not free:
+            yield []
+            return
+        i, others = free[0], free[1:]
+        yield from groupings(others)  # i alone
+        for j in near[i]:
+            if j in others:
+                for g in groupings([m for m in others if m != j]):
+                    yield [(i, j), *g]
+
+    best, best_value = inside, value(inside)
+    for g in groupings(sorted(group)):
+        if len(g) >= len(inside):
+            v = value(g)
+            if v > best_value + 1e-12:
+                best, best_value = g, v
+    return [*outside, *best]
 
 
 def _closest_first(k: int, pairs: list[tuple[float, int, int]]) -> list[tuple[int, int]]:
