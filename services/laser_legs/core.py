@@ -477,6 +477,9 @@ def _anchored(
     Exact: every grouping of the legs within reach (transitively) of a leg that can belong to
     a person inside the gate is scored; the other legs keep ``chosen``'s grouping. More than
     :data:`MAX_ANCHORED_LEGS` such legs: ``chosen``."""
+    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
+    if len(set(ends)) == len(ends):  # no leg with two partners: no other grouping has as many
+        return chosen
     weight = {(i, j): max_distance_m - d for d, i, j in pairs}
     near: list[list[int]] = [[] for _ in range(k)]
     for _, i, j in pairs:
@@ -500,7 +503,7 @@ def _anchored(
             if j not in group:
                 group.add(j)
                 todo.append(j)
-    if not group or len(group) > MAX_ANCHORED_LEGS:
+    if len(group) > MAX_ANCHORED_LEGS or all(len(near[i]) < 2 for i in group):
         return chosen
     outside = [g for g in chosen if g[0] not in group]
     paired = {i for g in chosen for i in g}

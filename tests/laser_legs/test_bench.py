@@ -14,5 +14,6 @@ def test_bench_prints_every_detector_and_its_time_in_reference_calls(capsys):
         median, low, ratio = (float(v) for v in by_name[name])
         assert 0 < low <= median
         assert ratio > 1  # a detector is more than one numpy call
+    assert any(k.startswith("thesis (tracking") for k in by_name)  # criterion 3 and anchor
     reference = next(v for k, v in by_name.items() if k.startswith("(reference"))
     assert float(reference[0]) > 0 and reference[2] == "1"
