@@ -210,6 +210,26 @@ def test_thesis_anchor_weight_gives_the_target_its_own_leg_not_a_cross_pair():
         ThesisSettings(anchor_weight=-1.0)
 
 
+def test_lone_leg_offset_places_a_lone_leg_s_person_behind_it_unless_someone_is_near():
+    """lone_leg_offset_m: a person 2.1 m ahead, legs one behind the other: only the near leg
+    shows (at 1.99 m). Off, the person is at the leg; 0.1 m, 0.1 m beyond it along the bearing
+    (the leg itself stays where it was seen). With another person's legs within
+    lone_leg_clear_m, the lone leg stays as it is."""
+    alone = make_scan([(2.0, 0.0, 0.06), (2.2, 0.0, 0.06)], [(4, -4, 4, 4)])
+
+    def lone(scan, offset):
+        found = ClusterLegDetector(ThesisSettings(lone_leg_offset_m=offset)).detect(scan)
+        c = next(c for c in found.candidates if len(c.legs) == 1)
+        return round(c.x_m, 3), round(c.legs[0].x_m, 3), round(c.range_m, 3)
+
+    assert lone(alone, 0.0) == (1.993, 1.993, 1.993)
+    assert lone(alone, 0.1) == (2.093, 1.993, 2.093)
+    crowded = make_scan(
+        [(2.0, 0.0, 0.06), (2.2, 0.0, 0.06), (2.3, 0.7, 0.06), (2.4, 0.95, 0.06)], [(4, -4, 4, 4)]
+    )
+    assert lone(crowded, 0.1) == (1.993, 1.993, 1.993)
+
+
 @settings(max_examples=300, deadline=None)
 @given(
     st.lists(st.tuples(st.floats(0.35, 1.15), st.floats(0.35, 1.15)), max_size=7),

@@ -60,6 +60,7 @@ from ..core import (
     gate,
     gate_xy,
     paired_candidates,
+    person,
 )
 
 __all__ = ["ClusterLegDetector", "ThesisSettings"]
@@ -124,6 +125,15 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     anchor_lone_leg_m: float = 0.15
     """A lone leg's distance to the prediction counts this much less (a person's centre lies
     ~0.13 m from a leg seen alone in the simulator)."""
+    lone_leg_offset_m: float = 0.0
+    """Beyond the thesis, off by default: a one-leg person with no other leg of the scan
+    within ``lone_leg_clear_m`` is placed this far beyond its leg, along the bearing. A leg
+    seen alone is mostly the near one hiding the other, half a stride behind it. The tracker
+    has the same option (tracking ``lone_leg_offset_m``), but criterion 3 hides the other
+    people's legs from it; here every leg of the scan is known. 0: at the leg (the thesis)."""
+    lone_leg_clear_m: float = 1.0
+    """... only with no other leg of the scan this near: near someone, a leg seen alone may be
+    hidden by, or belong with, them."""
     leg_centre_factor: float = math.pi / 8
     """Beyond the thesis: the cluster's middle (4.3.3) lies on the leg's visible surface, not
     at its centre. Beams evenly spread in angle hit a round leg of radius R evenly across its
@@ -151,6 +161,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
                 raise ValueError(f"{name} must be > 0")
         if not 0 <= self.leg_centre_factor <= 1:
             raise ValueError("leg_centre_factor must be in [0, 1]")
+        if not (self.lone_leg_offset_m >= 0 and self.lone_leg_clear_m >= 0):
+            raise ValueError("lone_leg_offset_m and lone_leg_clear_m must be >= 0")
         if not (self.anchor_weight >= 0 and self.anchor_lone_leg_m >= 0):
             raise ValueError("anchor_weight and anchor_lone_leg_m must be >= 0")
         if not self.pair_distance_m >= 0:
@@ -354,23 +366,44 @@ class ClusterLegDetector:
         s = self.settings
         legs, hidden = self._legs(scan, s.occluded_partner)
         if prediction is None:
-            return self._paired(scan, legs, hidden)
+            return self._offset(self._paired(scan, legs, hidden), legs)
         if s.outside_gate == "pair_first":  # criterion 3 on the persons' centres
             anchor = None
             px, py = float(prediction[0]), float(prediction[1])
             if s.anchor_weight and math.isfinite(px) and math.isfinite(py):
                 anchor = Anchor(px, py, s.anchor_weight, s.gate_m, s.anchor_lone_leg_m)
-            people = self._paired(scan, legs, hidden, anchor).candidates
+            people = self._offset(self._paired(scan, legs, hidden, anchor), legs).candidates
             near = gate_xy([c.x_m for c in people], [c.y_m for c in people], prediction, s.gate_m)
             kept = [c for c, ok in zip(people, near.tolist(), strict=True) if ok]
             return candidates_message(scan, self.name, kept)
         # criterion 3, eq. 4-7: near the tracker's prediction (keep_apart: the rest apart)
         near = gate_xy([g.x_m for g in legs], [g.y_m for g in legs], prediction, s.gate_m)
-        parts = [self._part(scan, legs, hidden, near.tolist())]
+        parts = [self._offset(self._part(scan, legs, hidden, near.tolist()), legs)]
         if s.outside_gate == "keep_apart":
-            parts.append(self._part(scan, legs, hidden, (~near).tolist()))
+            parts.append(self._offset(self._part(scan, legs, hidden, (~near).tolist()), legs))
             return candidates_message(scan, self.name, [c for m in parts for c in m.candidates])
         return parts[0]
+
+    def _offset(self, found: PersonCandidates, legs: list[Leg]) -> PersonCandidates:
+        """``lone_leg_offset_m``: each one-leg person with no other of ``legs`` within
+        ``lone_leg_clear_m`` moved that far beyond its leg, along the bearing."""
+        s = self.settings
+        if not s.lone_leg_offset_m:
+            return found
+        moved = False
+        out = []
+        for c in found.candidates:
+            if len(c.legs) == 1 and c.range_m > 0:
+                g = c.legs[0]
+                if all(
+                    o is g or math.hypot(o.x_m - g.x_m, o.y_m - g.y_m) >= s.lone_leg_clear_m
+                    for o in legs
+                ):
+                    k = 1.0 + s.lone_leg_offset_m / c.range_m
+                    c = person(c.legs, c.pattern, c.confidence, c.x_m * k, c.y_m * k)
+                    moved = True
+            out.append(c)
+        return msgspec.structs.replace(found, candidates=out) if moved else found
 
     def _part(self, scan: LaserScan, legs: list[Leg], hidden: list[Leg | None], keep: list[bool]):
         """The persons among the legs ``keep`` selects, paired among themselves."""
