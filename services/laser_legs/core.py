@@ -435,22 +435,18 @@ def pair_legs(
                 pairs.append((d, i, j))
     if pairing not in PAIRINGS:
         raise ValueError(f"pairing must be one of {PAIRINGS}, not {pairing!r}")
-    chosen = _pairs_of(k, pairs, max_distance_m, pairing)
-    if anchor is not None and pairing == "matching" and pairs:
-        chosen = _anchored(x, y, k, pairs, chosen, max_distance_m, anchor)
+    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
+    if len(set(ends)) == len(ends):
+        # no leg with two partners in reach: every rule (and every anchor) pairs them all
+        chosen = [(i, j) for _, i, j in pairs]
+    elif pairing == "matching":
+        chosen = _best_matching(k, pairs, max_distance_m)
+        if anchor is not None:
+            chosen = _anchored(x, y, k, pairs, chosen, max_distance_m, anchor)
+    else:
+        chosen = _closest_first(k, sorted(pairs))
     paired = {i for pair in chosen for i in pair}
     return sorted([*chosen, *((i,) for i in range(k) if i not in paired)])
-
-
-def _pairs_of(
-    k: int, pairs: list[tuple[float, int, int]], max_distance_m: float, pairing: str
-) -> list[tuple[int, int]]:
-    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
-    if len(set(ends)) == len(ends):  # no leg with two partners in reach: every rule pairs all
-        return [(i, j) for _, i, j in pairs]
-    if pairing == "matching":
-        return _best_matching(k, pairs, max_distance_m)
-    return _closest_first(k, sorted(pairs))
 
 
 #: Most legs near the anchor whose groupings :func:`pair_legs` enumerates (an anchor among
@@ -476,10 +472,8 @@ def _anchored(
 
     Exact: every grouping of the legs within reach (transitively) of a leg that can belong to
     a person inside the gate is scored; the other legs keep ``chosen``'s grouping. More than
-    :data:`MAX_ANCHORED_LEGS` such legs: ``chosen``."""
-    ends = [i for _, i, _ in pairs] + [j for _, _, j in pairs]
-    if len(set(ends)) == len(ends):  # no leg with two partners: no other grouping has as many
-        return chosen
+    :data:`MAX_ANCHORED_LEGS` such legs, or none with two partners in reach (no other
+    grouping then has as many pairs): ``chosen``."""
     weight = {(i, j): max_distance_m - d for d, i, j in pairs}
     near: list[list[int]] = [[] for _ in range(k)]
     for _, i, j in pairs:

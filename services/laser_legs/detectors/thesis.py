@@ -87,6 +87,13 @@ def _chord_list(increment_rad: float, n: int) -> tuple[float, ...]:
     return tuple(t.tolist())
 
 
+def _end_width(ra: float, rb: float, chord: float) -> float:
+    """Criterion 2, eq. 4-6: ``W^2 = ra^2 + rb^2 - 2 ra rb cos(dtheta_ab)``, computed as
+    ``(ra - rb)^2 + ra rb 4 sin^2(dtheta_ab / 2)`` with ``chord`` from :func:`_chord_list`."""
+    dr = ra - rb
+    return math.sqrt(dr * dr + ra * rb * chord)
+
+
 class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Parameters of :class:`ClusterLegDetector`; defaults are the thesis values."""
 
@@ -263,10 +270,7 @@ class ClusterLegDetector:
                     continue
             elif not (lo_c < c < hi_c and ra > 0.0):  # and a run of valid beams
                 continue
-            # criterion 2, eq. 4-6: W^2 = ra^2 + rb^2 - 2 ra rb cos(dtheta_ab)
-            #                           = (ra - rb)^2 + ra rb 4 sin^2(dtheta_ab / 2)  (table)
-            dr = ra - rb
-            w = math.sqrt(dr * dr + ra * rb * chord[c])
+            w = _end_width(ra, rb, chord[c])  # criterion 2
             w_eq = w + rm2 * half_shift if half_shift else w
             if w_lo < w_eq < w_hi:
                 found.append((i, c, w))
@@ -308,11 +312,6 @@ class ClusterLegDetector:
         s = self.settings
         n_runs = len(cuts) - 1
         legs = {i for i, _, _ in kept}
-
-        def width(j: int) -> float:  # eq. 4-6, as for the legs
-            dr = firsts[j] - lasts[j + 1]
-            return math.sqrt(dr * dr + firsts[j] * lasts[j + 1] * chord[cuts[j + 1] - cuts[j]])
-
         out: list[Leg | None] = []
         for i, c_i, w_i in kept:
             best, best_d = None, math.inf
@@ -334,7 +333,7 @@ class ClusterLegDetector:
                     beyond = firsts[far] if right else lasts[far + 1]
                 if 0 < beyond <= end:  # something nearer (or as near) continues past it
                     continue
-                if not width(j) < s.max_width_m:
+                if not _end_width(firsts[j], lasts[j + 1], chord[c_j]) < s.max_width_m:
                     continue
                 cx, cy = (sums[:, j] / c_j).tolist()
                 lx, ly = (sums[:, i] / c_i).tolist()
