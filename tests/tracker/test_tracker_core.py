@@ -630,6 +630,33 @@ def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
     assert target.status == "tracking" and target.y_m == pytest.approx(ahead[1], abs=0.1)
 
 
+@pytest.mark.parametrize(
+    ("since_seen", "distance", "retaken"),
+    [(True, 0.4, True), (True, 0.6, False), (False, 0.4, False)],
+)
+def test_look_gate_grows_from_when_the_target_was_last_seen(since_seen, distance, retaken):
+    """look_gate_since_seen: the loss is declared after the miss budget (9 scans here), and the
+    hidden person walked on all that time. Someone 0.9 m from where the target should be,
+    0.4 s after the loss, is within reach of a walker last seen 1.5 s ago (0.5 + 0.5 x 1.5 m),
+    not of one counted from the loss (0.5 + 0.5 x 0.4 m): looked at only with the gate grown
+    from the last sighting, and re-taken there only on a close match (look_wide_max_distance,
+    0.45)."""
+    trk = following_at_two(look_gate_m=0.5, look_max_s=4.0, look_gate_since_seen=since_seen)
+    target, k = _walk_then_hide(trk, 10)
+    assert target.status == "lost" and target.look_track_id == -1
+    out = (target.look_x_m - 0.9, target.look_y_m)
+    for j in range(k, k + 3):
+        still_robot(trk, j * SCAN_NS)
+        target, people = trk.step(cands(j * SCAN_NS, out))
+    out_id = next(t.id for t in people.tracks if abs(t.x_m - out[0]) < 0.2)
+    assert (target.look_track_id == out_id) == since_seen
+    for j in range(k + 3, k + 6):
+        still_robot(trk, j * SCAN_NS)
+        trk.add_verification(verification(j * SCAN_NS, [out], chosen=0, distances=[distance]))
+        target, _ = trk.step(cands(j * SCAN_NS, out))
+    assert (target.status == "tracking" and target.track_id == out_id) == retaken
+
+
 def test_after_look_max_s_the_gate_no_longer_applies():
     trk = following_at_two(
         look_while_lost=True, look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=None
@@ -984,8 +1011,9 @@ def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(r
     three scans. Their candidate lies inside the target's gate, so the target takes it once;
     vision (one scan late) rejects that candidate. With rollback the target returns to where
     it was and coasts while a new track follows the passer-by; without, the estimate is
-    dragged onto the passer-by."""
-    trk = following_at_two(rollback=rollback)
+    dragged onto the passer-by. (With front_approach_factor the standing target does not take
+    a candidate 0.25 m nearer at all, which leaves no rollback to test.)"""
+    trk = following_at_two(rollback=rollback, front_approach_factor=None)
     # scans 1..2 the target alone; 3..5 only the passer-by (target hidden); 6.. both
     passer = {3: (1.75, 0.2), 4: (1.7, 0.05), 5: (1.68, -0.1), 6: (1.66, -0.3), 7: (1.65, -0.5)}
     target_id = None
@@ -1416,10 +1444,12 @@ def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(margin, take
         assert target.x_m == pytest.approx(2.0, abs=0.1)
 
 
-def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
+@pytest.mark.parametrize("factor", [None, 2.0])
+def test_a_target_walking_briskly_towards_the_robot_is_still_taken(factor):
     """front_margin_m: alone, a candidate in front of the target's (lagging) estimate is the
-    target coming closer -- 1.5 m/s straight at the robot is taken every scan."""
-    trk = Tracker(TrackerSettings(acquire="nearest"))
+    target coming closer -- 1.5 m/s straight at the robot is taken every scan (with
+    front_approach_factor too: the walk explains the jump)."""
+    trk = Tracker(TrackerSettings(acquire="nearest", front_approach_factor=factor))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (3.0 - 0.18 * k, 0.0)))
@@ -1427,19 +1457,44 @@ def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
             assert target.status == "tracking"
 
 
-def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan():
+@pytest.mark.parametrize("factor", [None, 2.0])
+def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan(factor):
     """front_margin_m: a target walking at 1.5 m/s straight at the robot, missed for one scan,
     is taken back at once although it is then 0.25 m nearer than its coasting estimate (no
     other track holds it). Blocking candidates in front of a coasting target also when no
     other track holds them (tried in the eleventh session against a passer-by taken for the
-    hidden target) kept this target coasting for every scan after."""
-    trk = Tracker(TrackerSettings(acquire="nearest"))
+    hidden target) kept this target coasting for every scan after; front_approach_factor
+    allows for the target's own walk towards the robot."""
+    trk = Tracker(TrackerSettings(acquire="nearest", front_approach_factor=factor))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         seen = () if k == 8 else ((3.0 - 0.18 * k, 0.0),)
         target, _ = trk.step(cands(k * SCAN_NS, *seen))
         if k > 1:
             assert target.status == ("coasting" if k == 8 else "tracking")
+
+
+@pytest.mark.parametrize(("factor", "taken"), [(2.0, False), (None, True)])
+def test_a_passer_by_alone_in_front_of_a_standing_target_is_not_taken_for_it(factor, taken):
+    """front_approach_factor: the target stands 2 m ahead; a passer-by nobody tracks yet
+    crosses 0.35 m in front of it, on its bearing, hiding it. Neither the target (standing)
+    nor the robot (still) was closing in, so that jump is not the target's: its track coasts
+    and takes the target back when it shows again. None (the ninth session's rule): alone,
+    the passer-by is taken."""
+    trk = following_at_two(front_approach_factor=factor, reject_votes=0)
+    for k in range(1, 6):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+    tid = target.track_id
+    still_robot(trk, 6 * SCAN_NS)
+    target, _ = trk.step(cands(6 * SCAN_NS, (1.65, 0.05)))
+    assert (target.status == "tracking" and target.x_m < 1.85) == taken
+    if not taken:
+        assert target.status == "coasting" and target.track_id == tid
+        still_robot(trk, 7 * SCAN_NS)
+        target, _ = trk.step(cands(7 * SCAN_NS, (2.0, 0.0), (1.65, -0.05)))
+        assert target.status == "tracking" and target.track_id == tid
+        assert target.x_m == pytest.approx(2.0, abs=0.1)
 
 
 @pytest.mark.parametrize(
