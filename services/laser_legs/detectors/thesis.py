@@ -155,6 +155,22 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     target more often in closed loop (docs/laser_legs.md, "Half-hidden legs")."""
     min_partner_beams: int = 2
     """The fewest beams a hidden leg's sliver must show (one beam is as likely an edge)."""
+    edge_slivers: bool = False
+    """Beyond the thesis (twelfth session, off by default): a leg half hidden behind
+    something that is no leg (a pillar, a box) shows as a sliver too few beams or too narrow
+    for eq. 4-4 and criterion 2. A run of at least ``min_edge_beams`` beams, narrower than
+    ``min_width_m`` or too few, that starts where a nearer run (not a leg) ends and ends in a
+    jump to something farther (or no return) is taken as such a leg: its centre is placed
+    ``edge_leg_radius_m`` behind the sliver, towards the occluder's side by what the sliver
+    does not show. In occlusion_pillar the target's legs came out beside the pillar as such
+    slivers for 0.4-0.6 s before a whole leg showed (docs/laser_legs.md)."""
+    min_edge_beams: int = 3
+    edge_occluder_min_width_m: float = 0.0
+    """... only behind something at least this wide end to end (0: anything that is no leg;
+    e.g. 0.3, criterion 2's upper bound: no one leg, so in a crowd a person's legs do not
+    count as occluders)."""
+    edge_leg_radius_m: float = 0.06
+    """Radius of the leg a sliver belongs to (a leg is ~0.12 m across)."""
 
     def __post_init__(self) -> None:
         if self.clip_range_m is not None and not self.clip_range_m > 0:
@@ -176,6 +192,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
             raise ValueError("pair_distance_m must be >= 0")
         if self.min_partner_beams < 1:
             raise ValueError("min_partner_beams must be >= 1")
+        if self.min_edge_beams < 2 or not self.edge_leg_radius_m > 0:
+            raise ValueError("need min_edge_beams >= 2 and edge_leg_radius_m > 0")
 
 
 class ClusterLegDetector:
@@ -259,27 +277,38 @@ class ClusterLegDetector:
         half_shift = 0.5 * shift if abs(shift) > 1e-12 else 0.0
         w_lo, w_hi = s.min_width_m, s.max_width_m
         found = []  # (run, count, width) passing the count and width tests
+        narrow = []  # edge_slivers: (run, count, width) of valid runs too few or too narrow
+        edge_c = s.min_edge_beams if s.edge_slivers else n + 1
         runs = zip(cuts, cuts[1:], firsts, lasts[1:], strict=False)  # cuts, firsts: one more
         for i, (a, b, ra, rb) in enumerate(runs):
             c = b - a
-            if c < 3:
+            if c < 3 and c < edge_c:
                 continue
             rm2 = ra + rb  # twice the mean end range
             if scaled:
                 if not lo_c < c * rm2 < hi_c:
+                    if c >= edge_c and ra > 0.0 and c * rm2 <= lo_c:
+                        narrow.append((i, c, _end_width(ra, rb, chord[c])))
                     continue
             elif not (lo_c < c < hi_c and ra > 0.0):  # and a run of valid beams
+                if c >= edge_c and ra > 0.0 and c <= lo_c:
+                    narrow.append((i, c, _end_width(ra, rb, chord[c])))
+                continue
+            if c < 3:
                 continue
             w = _end_width(ra, rb, chord[c])  # criterion 2
             w_eq = w + rm2 * half_shift if half_shift else w
             if w_lo < w_eq < w_hi:
                 found.append((i, c, w))
-        if not found:
+            elif c >= edge_c and w_eq <= w_lo:
+                narrow.append((i, c, w))
+        if not found and not narrow:
             return [], []
         # criterion 1, eq. 3-8: the closest point is not an end point (both ends farther)
         mins = np.minimum.reduceat(rp, cut).tolist()
         kept = [f for f in found if firsts[f[0]] > mins[f[0]] < lasts[f[0] + 1]]
-        if not kept:
+        edges = self._edge_slivers(narrow, kept, cuts, firsts, lasts, chord) if narrow else []
+        if not kept and not edges:
             return [], []
         # a leg is the centroid ("middle", 4.3.3) of its cluster
         cssn = _cos_sin(float(scan.angle_min_rad), inc_signed, n)
@@ -294,10 +323,61 @@ class ClusterLegDetector:
                 push = 1 + factor * w / max(math.hypot(x, y), 1e-9)
                 x, y = x * push, y * push
             wire.append(Leg(x_m=x, y_m=y, first_beam=cuts[i], last_beam=cuts[i + 1] - 1, width_m=w))
+        if edges:
+            wire.extend(self._edge_legs(edges, cuts, sums, cssn, rpp_raw))
+            wire.sort(key=lambda g: g.first_beam)
+            kept = sorted(kept + [(i, c, w) for i, c, w, _ in edges])
         hidden: list[Leg | None] = []
         if partners:
             hidden = self._hidden_partners(kept, cuts, firsts, lasts, chord, sums)
         return wire, hidden
+
+    def _edge_slivers(
+        self, narrow, kept, cuts, firsts, lasts, chord
+    ) -> list[tuple[int, int, float, int]]:
+        """edge_slivers: the narrow runs ``(run, count, width, side)`` that start where a
+        nearer run wider than ``edge_occluder_min_width_m`` ends (side -1: it is the run
+        before, +1: after) and end in a jump to something farther or to no return."""
+        legs = {i for i, _, _ in kept}
+        n_runs = len(firsts) - 1
+        wide = self.settings.edge_occluder_min_width_m
+
+        def occluder(j: int) -> bool:  # run j is no leg and wider than a person's leg
+            c = cuts[j + 1] - cuts[j]
+            return j not in legs and _end_width(firsts[j], lasts[j + 1], chord[c]) >= wide
+
+        out = []
+        for i, c, w in narrow:
+            first, last = firsts[i], lasts[i + 1]
+            # the runs either side: their range at the sliver (-1: none, or no return)
+            before = lasts[i] if i > 0 else -1.0
+            after = firsts[i + 1] if i + 1 < n_runs else -1.0
+            if 0 < before < first and (after < 0 or after > last) and occluder(i - 1):
+                out.append((i, c, w, -1))
+            elif 0 < after < last and (before < 0 or before > first) and occluder(i + 1):
+                out.append((i, c, w, 1))
+        return out
+
+    def _edge_legs(self, edges, cuts, sums, cssn, rpp_raw) -> list[Leg]:
+        """The legs behind ``edges`` (from :meth:`_edge_slivers`): the sliver's centroid moved
+        one leg radius back along its bearing, and sideways towards the occluder by the part
+        of the leg's width the sliver does not show."""
+        rad = self.settings.edge_leg_radius_m
+        out = []
+        for i, c, w, side in edges:
+            cx, cy = (sums[:, i] / c).tolist()
+            r = max(math.hypot(cx, cy), 1e-9)
+            end = cuts[i] if side < 0 else cuts[i + 1] - 1  # the beam beside the occluder
+            ex, ey = (cssn[:, end] * rpp_raw[end + 1]).tolist()
+            dx, dy = ex - cx, ey - cy
+            d = math.hypot(dx, dy)
+            lateral = max(rad - 0.5 * w, 0.0) / d if d > 1e-9 else 0.0
+            x = cx * (1 + rad / r) + dx * lateral
+            y = cy * (1 + rad / r) + dy * lateral
+            out.append(
+                Leg(x_m=x, y_m=y, first_beam=cuts[i], last_beam=cuts[i + 1] - 1, width_m=2 * rad)
+            )
+        return out
 
     def _hidden_partners(self, kept, cuts, firsts, lasts, chord, sums) -> list[Leg | None]:
         """Step 8: for each kept run ``(i, count, width)``, the sliver of a leg it half hides,
