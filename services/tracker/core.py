@@ -426,7 +426,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Beyond the thesis (twelfth session): the gate grows with the time since the target was
     last *seen* (its last laser update), not since the loss was declared. The loss comes after
     the miss budget (8 scans, ~1 s at 8.3 Hz), and a hidden person walks on meanwhile: in
-    occlusion_pillar (seed 6) the target came out 1.3 m from the gate's centre, 1.6 s after
+    occlusion_pillar (seed 6) the target came out 1.46 m from the gate's centre, 1.6 s after
     the loss but 2.6 s after it was last seen, and the camera turned to it only 0.84 s later,
     when the gate had grown that far. Vision re-takes someone in that outer ring (outside the
     radius grown since the loss) only on a close match, look_wide_max_distance, as it does

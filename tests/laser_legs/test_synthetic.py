@@ -422,6 +422,14 @@ def test_a_leg_half_hidden_behind_a_pillar_is_found_only_with_edge_slivers():
         near_leg(make_detector("thesis", {"edge_slivers": True, "edge_occluder_min_width_m": 0.5}))
         == []
     )
+    # edge_alone_m: not within that distance of a whole leg (someone beside the pillar)
+    other = (1.3, 0.6, 0.06)
+    crowded = make_scan([pillar, leg, other], WALL)
+    for alone, n in ((0.0, 1), (0.5, 0)):
+        edge = make_detector("thesis", {"edge_slivers": True, "edge_alone_m": alone})
+        found = _legs(edge.detect(crowded))
+        assert sum(math.hypot(p[0] - leg[0], p[1] - leg[1]) < 0.15 for p in found) == n
+        assert _nearest(found, other[0], other[1]) < LEG_TOL_M
     # beside a leg (a person's near leg hiding the other) it is step 8's sliver, not this one
     near = (1.0, 0.0, 0.06)
     b = math.asin(0.06) + math.radians(1.5) - math.asin(0.06 / 1.3)  # 3 beams show

@@ -169,6 +169,9 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """... only behind something at least this wide end to end (0: anything that is no leg;
     e.g. 0.3, criterion 2's upper bound: no one leg, so in a crowd a person's legs do not
     count as occluders)."""
+    edge_alone_m: float = 0.0
+    """... only with no whole leg this near (0: anywhere; e.g. 0.5, pair_distance_m: a sliver
+    beside a person may be their other leg or a passer-by's)."""
     edge_leg_radius_m: float = 0.06
     """Radius of the leg a sliver belongs to (a leg is ~0.12 m across)."""
 
@@ -324,7 +327,15 @@ class ClusterLegDetector:
                 x, y = x * push, y * push
             wire.append(Leg(x_m=x, y_m=y, first_beam=cuts[i], last_beam=cuts[i + 1] - 1, width_m=w))
         if edges:
-            wire.extend(self._edge_legs(edges, cuts, sums, cssn, rpp_raw))
+            extra = self._edge_legs(edges, cuts, sums, cssn, rpp_raw)
+            if s.edge_alone_m > 0:  # not beside someone's leg: in a crowd it may be theirs
+                keep = [
+                    all(math.hypot(g.x_m - k.x_m, g.y_m - k.y_m) >= s.edge_alone_m for k in wire)
+                    for g in extra
+                ]
+                extra = [g for g, k in zip(extra, keep, strict=True) if k]
+                edges = [e for e, k in zip(edges, keep, strict=True) if k]
+            wire.extend(extra)
             wire.sort(key=lambda g: g.first_beam)
             kept = sorted(kept + [(i, c, w) for i, c, w, _ in edges])
         hidden: list[Leg | None] = []
