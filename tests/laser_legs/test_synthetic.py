@@ -422,6 +422,14 @@ def test_a_leg_half_hidden_behind_a_pillar_is_found_only_with_edge_slivers():
         near_leg(make_detector("thesis", {"edge_slivers": True, "edge_occluder_min_width_m": 0.5}))
         == []
     )
+    # edge_pairs off: the sliver's leg is a person of its own, never paired
+    alone = make_detector("thesis", {"edge_slivers": True, "edge_pairs": False})
+    (c,) = [
+        c
+        for c in alone.detect(scan).candidates
+        if math.hypot(c.x_m - leg[0], c.y_m - leg[1]) < 0.15
+    ]
+    assert c.pattern == "edge_leg" and len(c.legs) == 1
     # edge_alone_m: not within that distance of a whole leg (someone beside the pillar)
     other = (1.3, 0.6, 0.06)
     crowded = make_scan([pillar, leg, other], WALL)

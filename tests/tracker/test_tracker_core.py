@@ -1421,16 +1421,28 @@ def test_vision_accepting_someone_inside_the_search_gate_takes_them_at_once():
     assert tid not in trk.tracks and trk.target_switches == 0
 
 
-@pytest.mark.parametrize(("margin", "taken"), [(0.2, False), (None, True)])
-def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(margin, taken):
+@pytest.mark.parametrize(
+    ("settings", "beside", "taken"),
+    [
+        ({"front_margin_m": 0.2}, True, False),
+        ({"front_margin_m": None}, True, True),
+        ({"front_approach_factor": 2.0}, False, False),
+        ({"front_approach_factor": None}, False, True),
+    ],
+)
+def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(settings, beside, taken):
     """front_margin_m: the target stands 2 m ahead, a passer-by's track beside it; the
     passer-by crosses 0.3 m in front of the target, on its bearing, hiding it. The target's
     track (gate 0.4 m) coasts instead of taking the passer-by, and takes the target back when
-    it shows again. Off: it takes the passer-by."""
-    trk = following_at_two(front_margin_m=margin, reject_votes=0)
+    it shows again. Off: it takes the passer-by. front_approach_factor: the same with nobody
+    tracking the passer-by before (beside=False) -- the standing target's own walk cannot
+    explain a 0.3 m jump towards the laser; without it (the ninth session's rule) a passer-by
+    no other track holds is taken."""
+    trk = following_at_two(reject_votes=0, **settings)
+    others = [(1.75, 0.35)] if beside else []
     for k in range(1, 5):
         still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0), (1.75, 0.35)))
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0), *others))
     tid = target.track_id
     assert target.status == "tracking" and target.x_m == pytest.approx(2.0, abs=0.05)
     still_robot(trk, 5 * SCAN_NS)
@@ -1472,29 +1484,6 @@ def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan(fa
         target, _ = trk.step(cands(k * SCAN_NS, *seen))
         if k > 1:
             assert target.status == ("coasting" if k == 8 else "tracking")
-
-
-@pytest.mark.parametrize(("factor", "taken"), [(2.0, False), (None, True)])
-def test_a_passer_by_alone_in_front_of_a_standing_target_is_not_taken_for_it(factor, taken):
-    """front_approach_factor: the target stands 2 m ahead; a passer-by nobody tracks yet
-    crosses 0.35 m in front of it, on its bearing, hiding it. Neither the target (standing)
-    nor the robot (still) was closing in, so that jump is not the target's: its track coasts
-    and takes the target back when it shows again. None (the ninth session's rule): alone,
-    the passer-by is taken."""
-    trk = following_at_two(front_approach_factor=factor, reject_votes=0)
-    for k in range(1, 6):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
-    tid = target.track_id
-    still_robot(trk, 6 * SCAN_NS)
-    target, _ = trk.step(cands(6 * SCAN_NS, (1.65, 0.05)))
-    assert (target.status == "tracking" and target.x_m < 1.85) == taken
-    if not taken:
-        assert target.status == "coasting" and target.track_id == tid
-        still_robot(trk, 7 * SCAN_NS)
-        target, _ = trk.step(cands(7 * SCAN_NS, (2.0, 0.0), (1.65, -0.05)))
-        assert target.status == "tracking" and target.track_id == tid
-        assert target.x_m == pytest.approx(2.0, abs=0.1)
 
 
 @pytest.mark.parametrize(

@@ -169,6 +169,9 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """... only behind something at least this wide end to end (0: anything that is no leg;
     e.g. 0.3, criterion 2's upper bound: no one leg, so in a crowd a person's legs do not
     count as occluders)."""
+    edge_pairs: bool = True
+    """... False: a sliver's leg is a one-leg person of its own (pattern ``edge_leg``), never
+    paired: beside a passer-by, two such legs (one of each person) make a cross pair."""
     edge_alone_m: float = 0.0
     """... only with no whole leg this near (0: anywhere; e.g. 0.5, pair_distance_m: a sliver
     beside a person may be their other leg or a passer-by's)."""
@@ -207,6 +210,7 @@ class ClusterLegDetector:
 
     def __init__(self, settings: ThesisSettings | None = None) -> None:
         self.settings = settings or ThesisSettings()
+        self._edge: set[int] = set()  # edge_pairs off: ids of this scan's slivers' legs
         self._ref_arc = self.settings.ref_increment_rad * self.settings.ref_range_m
 
     def legs(self, scan: LaserScan, prediction: Prediction = None) -> LegSet:
@@ -225,7 +229,9 @@ class ClusterLegDetector:
             return legs
         return legs.select(gate(legs, prediction, self.settings.gate_m))  # criterion 3
 
-    def _legs(self, scan: LaserScan, partners: bool) -> tuple[list[Leg], list[Leg | None]]:
+    def _legs(
+        self, scan: LaserScan, partners: bool
+    ) -> tuple[list[Leg], list[Leg | None], list[Leg]]:
         """The legs passing criteria 1-2 of one scan, before criterion 3 (the caller's) and
         pairing, and (``partners``) for each the sliver of a leg it half hides (step 8), or
         None.
@@ -259,7 +265,7 @@ class ClusterLegDetector:
         np.abs(d, out=d)
         cut = (d >= s.cluster_jump_m).nonzero()[0]
         if cut.shape[0] < 2:
-            return [], []
+            return [], [], []
         rp = rpp[1:]  # n + 1 long, so the last cut (<= n) is a valid index
         cuts = cut.tolist()
         firsts = rp[cut].tolist()  # firsts[i]: range at run i's first beam
@@ -306,13 +312,13 @@ class ClusterLegDetector:
             elif c >= edge_c and w_eq <= w_lo:
                 narrow.append((i, c, w))
         if not found and not narrow:
-            return [], []
+            return [], [], []
         # criterion 1, eq. 3-8: the closest point is not an end point (both ends farther)
         mins = np.minimum.reduceat(rp, cut).tolist()
         kept = [f for f in found if firsts[f[0]] > mins[f[0]] < lasts[f[0] + 1]]
         edges = self._edge_slivers(narrow, kept, cuts, firsts, lasts, chord) if narrow else []
         if not kept and not edges:
-            return [], []
+            return [], [], []
         # a leg is the centroid ("middle", 4.3.3) of its cluster
         cssn = _cos_sin(float(scan.angle_min_rad), inc_signed, n)
         sums = np.add.reduceat(cssn * rpp_raw[1:], cut, axis=1)
@@ -337,11 +343,13 @@ class ClusterLegDetector:
                 edges = [e for e, k in zip(edges, keep, strict=True) if k]
             wire.extend(extra)
             wire.sort(key=lambda g: g.first_beam)
+        else:
+            extra = []
             kept = sorted(kept + [(i, c, w) for i, c, w, _ in edges])
         hidden: list[Leg | None] = []
         if partners:
             hidden = self._hidden_partners(kept, cuts, firsts, lasts, chord, sums)
-        return wire, hidden
+        return wire, hidden, extra
 
     def _edge_slivers(
         self, narrow, kept, cuts, firsts, lasts, chord
@@ -454,7 +462,8 @@ class ClusterLegDetector:
 
     def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
         s = self.settings
-        legs, hidden = self._legs(scan, s.occluded_partner)
+        legs, hidden, edge = self._legs(scan, s.occluded_partner)
+        self._edge = {id(g) for g in edge} if edge and not s.edge_pairs else set()
         if prediction is None:
             return self._offset(self._paired(scan, legs, hidden), legs)
         if s.outside_gate == "pair_first":  # criterion 3 on the persons' centres
@@ -508,8 +517,25 @@ class ClusterLegDetector:
         anchor: Anchor | None = None,
     ):
         s = self.settings
+        alone = []
+        if self._edge:  # edge_pairs off: slivers' legs stand alone
+            alone = [
+                person([g], "edge_leg", s.one_leg_confidence) for g in legs if id(g) in self._edge
+            ]
+            keep = [id(g) not in self._edge for g in legs]
+            hidden = [h for h, k in zip(hidden, keep, strict=True) if k] if hidden else []
+            legs = [g for g, k in zip(legs, keep, strict=True) if k]
         if not legs:
+            if alone:
+                return candidates_message(scan, self.name, alone)
             return empty_candidates(scan, self.name)
+        if alone:
+            found = self._paired_whole(scan, legs, hidden, anchor)
+            return candidates_message(scan, self.name, [*found.candidates, *alone])
+        return self._paired_whole(scan, legs, hidden, anchor)
+
+    def _paired_whole(self, scan, legs, hidden, anchor):
+        s = self.settings
 
         def partner(wire: list[Leg], i: int) -> Leg | None:  # step 8
             return hidden[i] if hidden[i] is not None and self._alone(wire, i) else None
