@@ -422,6 +422,12 @@ def test_a_leg_half_hidden_behind_a_pillar_is_found_only_with_edge_slivers():
         near_leg(make_detector("thesis", {"edge_slivers": True, "edge_occluder_min_width_m": 0.5}))
         == []
     )
+    # edge_only_searching: only in scans without a prediction (no target tracked)
+    searching = make_detector("thesis", {"edge_slivers": True, "edge_only_searching": True})
+    at = np.array([leg[0], leg[1]])
+    assert near_leg(searching) != []
+    assert _legs(searching.detect(scan, at)) == []
+    assert _legs(make_detector("thesis", {"edge_slivers": True}).detect(scan, at)) != []
     # edge_pairs off: the sliver's leg is a person of its own, never paired
     alone = make_detector("thesis", {"edge_slivers": True, "edge_pairs": False})
     (c,) = [

@@ -169,6 +169,10 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """... only behind something at least this wide end to end (0: anything that is no leg;
     e.g. 0.3, criterion 2's upper bound: no one leg, so in a crowd a person's legs do not
     count as occluders)."""
+    edge_only_searching: bool = False
+    """... only in scans without a prediction (criterion 3 off: no target tracked, or it is
+    hidden or lost), where a person coming out from behind something is to be found; while
+    the target is tracked, a sliver beside it is as likely a passer-by's leg."""
     edge_pairs: bool = True
     """... False: a sliver's leg is a one-leg person of its own (pattern ``edge_leg``), never
     paired: beside a passer-by, two such legs (one of each person) make a cross pair."""
@@ -230,7 +234,7 @@ class ClusterLegDetector:
         return legs.select(gate(legs, prediction, self.settings.gate_m))  # criterion 3
 
     def _legs(
-        self, scan: LaserScan, partners: bool
+        self, scan: LaserScan, partners: bool, edges_ok: bool = True
     ) -> tuple[list[Leg], list[Leg | None], list[Leg]]:
         """The legs passing criteria 1-2 of one scan, before criterion 3 (the caller's) and
         pairing, and (``partners``) for each the sliver of a leg it half hides (step 8), or
@@ -287,7 +291,7 @@ class ClusterLegDetector:
         w_lo, w_hi = s.min_width_m, s.max_width_m
         found = []  # (run, count, width) passing the count and width tests
         narrow = []  # edge_slivers: (run, count, width) of valid runs too few or too narrow
-        edge_c = s.min_edge_beams if s.edge_slivers else n + 1
+        edge_c = s.min_edge_beams if s.edge_slivers and edges_ok else n + 1
         runs = zip(cuts, cuts[1:], firsts, lasts[1:], strict=False)  # cuts, firsts: one more
         for i, (a, b, ra, rb) in enumerate(runs):
             c = b - a
@@ -462,7 +466,8 @@ class ClusterLegDetector:
 
     def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
         s = self.settings
-        legs, hidden, edge = self._legs(scan, s.occluded_partner)
+        searching = prediction is None or not s.edge_only_searching
+        legs, hidden, edge = self._legs(scan, s.occluded_partner, searching)
         self._edge = {id(g) for g in edge} if edge and not s.edge_pairs else set()
         if prediction is None:
             return self._offset(self._paired(scan, legs, hidden), legs)
