@@ -444,6 +444,20 @@ def test_a_leg_half_hidden_behind_a_pillar_is_found_only_with_edge_slivers():
         found = _legs(edge.detect(crowded))
         assert sum(math.hypot(p[0] - leg[0], p[1] - leg[1]) < 0.15 for p in found) == n
         assert _nearest(found, other[0], other[1]) < LEG_TOL_M
+    # with step 8 too: a person walking at the laser (near leg, far leg's sliver behind it)
+    # beyond the pillar keeps its two legs, and the pillar's sliver is a leg of its own
+    turn = math.radians(50)
+    c50, s50 = math.cos(turn), math.sin(turn)
+    walker = [
+        (1.2 * c50, 1.2 * s50, 0.06),
+        (1.45 * c50 - 0.07 * s50, 1.45 * s50 + 0.07 * c50, 0.06),
+    ]
+    both = make_detector("thesis", {"edge_slivers": True, "occluded_partner": True})
+    found = both.detect(make_scan([pillar, leg, *walker], WALL)).candidates
+    assert sorted(len(c.legs) for c in found) == [1, 2]
+    assert any(
+        len(c.legs) == 1 and math.hypot(c.x_m - leg[0], c.y_m - leg[1]) < 0.03 for c in found
+    )
     # beside a leg (a person's near leg hiding the other) it is step 8's sliver, not this one
     near = (1.0, 0.0, 0.06)
     b = math.asin(0.06) + math.radians(1.5) - math.asin(0.06 / 1.3)  # 3 beams show

@@ -347,9 +347,9 @@ class ClusterLegDetector:
                 edges = [e for e, k in zip(edges, keep, strict=True) if k]
             wire.extend(extra)
             wire.sort(key=lambda g: g.first_beam)
+            kept = sorted(kept + [(i, c, w) for i, c, w, _ in edges])  # in step with wire
         else:
             extra = []
-            kept = sorted(kept + [(i, c, w) for i, c, w, _ in edges])
         hidden: list[Leg | None] = []
         if partners:
             hidden = self._hidden_partners(kept, cuts, firsts, lasts, chord, sums)
