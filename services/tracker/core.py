@@ -340,11 +340,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     its lagging estimate) unless front_approach_factor says otherwise. None: off."""
     front_approach_factor: Annotated[float, msgspec.Meta(ge=0)] | None = None
     """Beyond the thesis (twelfth session; off by default), with front_margin_m: e.g. 2.0 --
-    alone, too, a candidate (on
-    the target's bearing or not) is not the target's when it lies more than front_margin_m +
-    this x (the target's recent walking speed towards the laser, from its steps) x (time
-    since it was last seen) nearer than the prediction -- a jump towards the laser its own
-    walk cannot explain (the robot's drive is in the prediction already). In
+    alone, too, a candidate (on the target's bearing or not) is not the target's when it lies
+    more than front_margin_m + this x (the target's recent walking speed towards the laser,
+    from its steps) x (time since it was last seen) nearer than the prediction -- a jump
+    towards the laser its own walk cannot explain (the robot's drive is in the prediction
+    already). In
     thesis_5_2_4_side_by_side (seeds 2 and 4) the target, walking ahead of the following
     robot, took for one scan a passer-by 0.35 m nearer and 6-8 deg to its side, whose own
     track did not hold that candidate. A target walking at the robot at 1.5 m/s may still

@@ -214,7 +214,6 @@ class ClusterLegDetector:
 
     def __init__(self, settings: ThesisSettings | None = None) -> None:
         self.settings = settings or ThesisSettings()
-        self._edge: set[int] = set()  # edge_pairs off: ids of this scan's slivers' legs
         self._ref_arc = self.settings.ref_increment_rad * self.settings.ref_range_m
 
     def legs(self, scan: LaserScan, prediction: Prediction = None) -> LegSet:
@@ -298,13 +297,9 @@ class ClusterLegDetector:
             if c < 3 and c < edge_c:
                 continue
             rm2 = ra + rb  # twice the mean end range
-            if scaled:
-                if not lo_c < c * rm2 < hi_c:
-                    if c >= edge_c and ra > 0.0 and c * rm2 <= lo_c:
-                        narrow.append((i, c, _end_width(ra, rb, chord[c])))
-                    continue
-            elif not (lo_c < c < hi_c and ra > 0.0):  # and a run of valid beams
-                if c >= edge_c and ra > 0.0 and c <= lo_c:
+            if not (lo_c < c * rm2 < hi_c if scaled else lo_c < c < hi_c and ra > 0.0):
+                # (unscaled: and a run of valid beams); edge_slivers: too few beams
+                if c >= edge_c and ra > 0.0 and (c * rm2 if scaled else c) <= lo_c:
                     narrow.append((i, c, _end_width(ra, rb, chord[c])))
                 continue
             if c < 3:
@@ -468,23 +463,26 @@ class ClusterLegDetector:
         s = self.settings
         searching = prediction is None or not s.edge_only_searching
         legs, hidden, edge = self._legs(scan, s.occluded_partner, searching)
-        self._edge = {id(g) for g in edge} if edge and not s.edge_pairs else set()
+        # edge_pairs off: the slivers' legs (by identity) stand alone
+        lone = frozenset(map(id, edge)) if edge and not s.edge_pairs else frozenset()
         if prediction is None:
-            return self._offset(self._paired(scan, legs, hidden), legs)
+            return self._offset(self._paired(scan, legs, hidden, lone=lone), legs)
         if s.outside_gate == "pair_first":  # criterion 3 on the persons' centres
             anchor = None
             px, py = float(prediction[0]), float(prediction[1])
             if s.anchor_weight and math.isfinite(px) and math.isfinite(py):
                 anchor = Anchor(px, py, s.anchor_weight, s.gate_m, s.anchor_lone_leg_m)
-            people = self._offset(self._paired(scan, legs, hidden, anchor), legs).candidates
+            people = self._paired(scan, legs, hidden, anchor, lone)
+            people = self._offset(people, legs).candidates
             near = gate_xy([c.x_m for c in people], [c.y_m for c in people], prediction, s.gate_m)
             kept = [c for c, ok in zip(people, near.tolist(), strict=True) if ok]
             return candidates_message(scan, self.name, kept)
         # criterion 3, eq. 4-7: near the tracker's prediction (keep_apart: the rest apart)
         near = gate_xy([g.x_m for g in legs], [g.y_m for g in legs], prediction, s.gate_m)
-        parts = [self._offset(self._part(scan, legs, hidden, near.tolist()), legs)]
+        parts = [self._offset(self._part(scan, legs, hidden, near.tolist(), lone), legs)]
         if s.outside_gate == "keep_apart":
-            parts.append(self._offset(self._part(scan, legs, hidden, (~near).tolist()), legs))
+            rest = self._part(scan, legs, hidden, (~near).tolist(), lone)
+            parts.append(self._offset(rest, legs))
             return candidates_message(scan, self.name, [c for m in parts for c in m.candidates])
         return parts[0]
 
@@ -509,10 +507,18 @@ class ClusterLegDetector:
             out.append(c)
         return msgspec.structs.replace(found, candidates=out) if moved else found
 
-    def _part(self, scan: LaserScan, legs: list[Leg], hidden: list[Leg | None], keep: list[bool]):
+    def _part(
+        self,
+        scan: LaserScan,
+        legs: list[Leg],
+        hidden: list[Leg | None],
+        keep: list[bool],
+        lone: frozenset[int],
+    ):
         """The persons among the legs ``keep`` selects, paired among themselves."""
         mine = [h for h, ok in zip(hidden, keep, strict=True) if ok] if hidden else []
-        return self._paired(scan, [g for g, ok in zip(legs, keep, strict=True) if ok], mine)
+        chosen = [g for g, ok in zip(legs, keep, strict=True) if ok]
+        return self._paired(scan, chosen, mine, lone=lone)
 
     def _paired(
         self,
@@ -520,24 +526,21 @@ class ClusterLegDetector:
         legs: list[Leg],
         hidden: list[Leg | None],
         anchor: Anchor | None = None,
+        lone: frozenset[int] = frozenset(),
     ):
+        """The persons of ``legs``; those whose id is in ``lone`` (edge_pairs off) each a
+        one-leg person of its own, never paired."""
         s = self.settings
         alone = []
-        if self._edge:  # edge_pairs off: slivers' legs stand alone
-            alone = [
-                person([g], "edge_leg", s.one_leg_confidence) for g in legs if id(g) in self._edge
-            ]
-            keep = [id(g) not in self._edge for g in legs]
+        if lone:
+            alone = [person([g], "edge_leg", s.one_leg_confidence) for g in legs if id(g) in lone]
+            keep = [id(g) not in lone for g in legs]
             hidden = [h for h, k in zip(hidden, keep, strict=True) if k] if hidden else []
             legs = [g for g, k in zip(legs, keep, strict=True) if k]
-        if not legs:
-            if alone:
-                return candidates_message(scan, self.name, alone)
-            return empty_candidates(scan, self.name)
-        if alone:
-            found = self._paired_whole(scan, legs, hidden, anchor)
-            return candidates_message(scan, self.name, [*found.candidates, *alone])
-        return self._paired_whole(scan, legs, hidden, anchor)
+        found = self._paired_whole(scan, legs, hidden, anchor) if legs else None
+        if not alone:
+            return found or empty_candidates(scan, self.name)
+        return candidates_message(scan, self.name, [*(found.candidates if found else ()), *alone])
 
     def _paired_whole(self, scan, legs, hidden, anchor):
         s = self.settings
