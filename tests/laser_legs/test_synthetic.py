@@ -282,6 +282,9 @@ def test_make_detector_by_name_and_settings():
         make_detector("nope")
     with pytest.raises(ValueError):
         ThesisSettings(min_width_m=0.5, max_width_m=0.1)
+    for bad in ({"min_edge_beams": 1}, {"edge_alone_m": -0.1}, {"edge_occluder_min_width_m": -1}):
+        with pytest.raises(ValueError, match="edge"):
+            ThesisSettings(**bad)
 
 
 def test_stamp_frame_and_empty_scan():

@@ -204,6 +204,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
             raise ValueError("min_partner_beams must be >= 1")
         if self.min_edge_beams < 2 or not self.edge_leg_radius_m > 0:
             raise ValueError("need min_edge_beams >= 2 and edge_leg_radius_m > 0")
+        if not (self.edge_occluder_min_width_m >= 0 and self.edge_alone_m >= 0):
+            raise ValueError("edge_occluder_min_width_m and edge_alone_m must be >= 0")
 
 
 class ClusterLegDetector:
