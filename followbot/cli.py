@@ -102,6 +102,7 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "up": ("followbot.up", "main", "start and supervise a deployment from a compose file"),
     "target": ("followbot.target", "main", "acquire / reset / save / load the target model"),
     "eval": ("followbot.eval_cli", "main", "scenarios x presets through the pipeline: report"),
+    "sweep": ("followbot.sweep", "main", "every scenario over several seeds: the issues' figures"),
     "track": ("followbot.track", "main", "run the pipeline over a recording; tracks to CSV"),
     "record": ("followbot.recording", "record_main", "record topics to MCAP"),
     "replay": ("followbot.recording", "replay_main", "replay an MCAP file or a ROS 1/2 bag"),
