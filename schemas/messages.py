@@ -458,6 +458,12 @@ class TrackState(Message, tag="track_state", kw_only=True):
     """Where that person is (base frame of the scan's stamp); with ``look_track_id`` -1, a
     point to look at where nobody is tracked yet (where the lost target should be now), or
     (0, 0): nowhere. The controller pans there."""
+    shift_x_m: Finite = 0.0
+    shift_y_m: Finite = 0.0
+    """The part of (x_m, y_m) that is the tracker's correction for legs seen alone (tracker
+    setting lone_leg_output_m): (x_m - shift_x_m, y_m - shift_y_m) is its filter's own
+    estimate, the one it associates candidates with, and laser_legs gates there
+    (criterion 3). (0, 0) without the correction."""
 
 
 class PersonTrack(msgspec.Struct, kw_only=True):

@@ -131,8 +131,11 @@ class TargetPredictor:
             self.skipped += 1
             return None
         dt = dt_ns * _NS
-        # constant velocity in the base frame of the target's stamp
-        px, py = t.x_m + t.vx_mps * dt, t.y_m + t.vy_mps * dt
+        # constant velocity in the base frame of the target's stamp, from the tracker's filter
+        # estimate (without its lone-leg shift, TrackState.shift_*): the gate is where the
+        # tracker itself looks for the target's candidates
+        px = t.x_m - t.shift_x_m + t.vx_mps * dt
+        py = t.y_m - t.shift_y_m + t.vy_mps * dt
         if len(self.odometry):
             p0 = self.odometry.pose_at(t.stamp_ns)
             p1 = self.odometry.pose_at(scan.stamp_ns)

@@ -377,6 +377,20 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     leg may be hidden by, or pair with, them, and moving it outwards moved the target onto
     whoever walked behind. (It did not remove those switches: criterion 3 leaves the
     bystander without a track; docs/tracker.md, ninth session.)"""
+    lone_leg_output_m: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.0
+    """Beyond the thesis: the target's *reported* position takes a leg seen alone for a person
+    centred this far beyond it along its bearing (as lone_leg_offset_m), while the filter
+    that associates candidates keeps the leg where it was measured. The filter's estimate
+    after each update is carried forward together with a shift: what the estimate would be
+    had every lone leg of its updates been moved out (the cloud weighed once more for the
+    moved leg; each update keeps 1 - k of the earlier shift, k the share by which it moved
+    the estimate). tracking/target and the target's entry in tracking/people report the
+    estimate plus the shift (tracking/target also the shift itself, ``shift_x_m``/``_y_m``,
+    so laser_legs gates criterion 3 at the estimate); association, gates, coasting and
+    rollbacks use the estimate alone, so whom the target takes is the thesis's decision
+    (lone_leg_offset_m moved the filter itself, and moved the target onto whoever walked
+    behind it: docs/tracker.md).
+    Particle estimator only (its cloud is what is weighed again); 0: off."""
     rollback: bool = True
     """Roll the target back to its state before a candidate that vision rejected (module doc);
     false: only count the rejection towards reject_votes (the behaviour before this)."""
@@ -468,6 +482,10 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             estimator_factory(self.estimator, self.estimator_settings)
         except LookupError as exc:  # plugins.UnknownPlugin
             raise ValueError(str(exc).strip("'\"")) from None
+        if self.lone_leg_output_m and self.lone_leg_offset_m:
+            raise ValueError(
+                "lone_leg_output_m and lone_leg_offset_m both move a lone leg out: set one"
+            )
 
 
 class Track:
@@ -482,6 +500,7 @@ class Track:
         "id",
         "last_seen_ns",
         "misses",
+        "shift",
         "steps",
     )
 
@@ -498,6 +517,13 @@ class Track:
         """Position after the last update, in the odometry frame (for coasting)."""
         self.steps: deque[tuple[int, float, float]] = deque()
         """(stamp, vx, vy): velocity between two updates, odometry frame, recent updates."""
+        self.shift = np.zeros(2)
+        """Added to the estimate in what the tracker reports (lone_leg_output_m), base frame."""
+
+    @property
+    def reported(self) -> np.ndarray:
+        """(2,) the position the tracker reports: the estimate plus its lone-leg shift."""
+        return self.estimator.mean[:2] + self.shift
 
     @property
     def position(self) -> np.ndarray:
@@ -657,6 +683,10 @@ class Tracker:
                 if rotation is not None:
                     t.estimator.ego_motion(rotation, translation)
                 t.estimator.predict(dt, t.misses)
+        if rotation is not None:
+            for t in self.tracks.values():
+                if t.shift.any():
+                    t.shift = rotation @ t.shift  # a vector: turns with the base, no translation
         if s.coast_velocity_s > 0:
             for t in self.tracks.values():  # hidden since the last scan: moving on (settings)
                 if t.misses > 0 and t.steps and getattr(t.estimator, "coasts_in_place", False):
@@ -753,7 +783,8 @@ class Tracker:
         updated = [self.tracks[tid] for tid in ids if tid in matched]
         zs = [measured.get(t.id, points[first[matched[t.id]]]) for t in updated]
         scales = None
-        if s.one_leg_noise_scale != 1.0 or s.lone_leg_offset_m:
+        lone = None
+        if s.one_leg_noise_scale != 1.0 or s.lone_leg_offset_m or s.lone_leg_output_m:
             # a lone leg, one leg of a pair, or a split pair's
             split = {c for c in unit_cand if unit_cand.count(c) > 1}
             lone = [
@@ -783,6 +814,8 @@ class Tracker:
         else:
             for i, (t, zi) in enumerate(zip(updated, zs, strict=True)):
                 t.estimator.update(zi, 1.0 if scales is None else float(scales[i]))
+        if s.lone_leg_output_m and lone is not None:
+            self._shift_target(updated, zs, lone, scales)
         learn: list[tuple[Track, int]] = []  # (track, seen before): velocities, in step_rest
         for tid in ids:
             t = self.tracks[tid]
@@ -896,6 +929,35 @@ class Tracker:
             stamp, candidates.frame_id, _Scan(self._index, pose, assoc, prior), learn, pose
         )
         return self._target_output(stamp, candidates.frame_id, flags, sources)
+
+    def _shift_target(
+        self,
+        updated: list[Track],
+        zs: list[np.ndarray],
+        lone: list[bool],
+        scales: np.ndarray | None,
+    ) -> None:
+        """The target's reported shift after its update (lone_leg_output_m): the update would
+        have moved the estimate by ``moved`` had its measurement lain ``b`` farther out; that
+        is k b along the bearing, so the update keeps 1 - k of the earlier shift and, for a
+        lone leg, adds ``moved``."""
+        b = self.settings.lone_leg_output_m
+        for i, t in enumerate(updated):
+            if t.id != self.target_id:
+                continue
+            mean_if = getattr(t.estimator, "mean_if", None)
+            r = float(np.hypot(*zs[i]))
+            if mean_if is None or not r > 0:
+                return
+            u = zs[i] / r
+            moved = mean_if(zs[i] + b * u, 1.0 if scales is None else float(scales[i]))[:2]
+            moved -= t.estimator.mean[:2]
+            if not np.isfinite(moved).all():
+                t.shift = np.zeros(2)
+                return
+            k = min(max(float(moved @ u) / b, 0.0), 1.0)
+            t.shift = (1.0 - k) * t.shift + (moved if lone[i] else 0.0)
+            return
 
     def step_rest(self) -> People:
         """Finish the scan :meth:`step_target` began; returns its People message."""
@@ -1180,6 +1242,9 @@ class Tracker:
         self._searching = False
         if self.target_id >= 0 and tid != self.target_id:
             self.target_switches += 1
+        for i in {self.target_id, tid} if tid != self.target_id else ():
+            if i in self.tracks:
+                self.tracks[i].shift = np.zeros(2)  # kept for the target only, from now on
         self.target_id = tid
         self._confirmed_index = self._index - 1  # chosen by vision (or a model) just now
         self._had_target = True
@@ -1439,6 +1504,7 @@ class Tracker:
         misses = max(1, self._index - scan_j.index)
         before.predict(min((stamp_now - stamp_j) / _NS, s.max_dt_s), misses)
         track.estimator = before
+        track.shift = np.zeros(2)  # (the snapshot's updates are not the ones shifted)
         track.misses = misses
         self.rollbacks += 1
 
@@ -1457,13 +1523,14 @@ class Tracker:
         if self.target_id >= 0:
             t = self.tracks[self.target_id]
             m, cov = t.estimator.mean, t.estimator.covariance
+            xy = t.reported
             target = TrackState(
                 stamp_ns=stamp,
                 frame_id=frame_id,
                 status=status,
                 track_id=t.id,
-                x_m=float(m[0]),
-                y_m=float(m[1]),
+                x_m=float(xy[0]),
+                y_m=float(xy[1]),
                 vx_mps=float(m[2]),
                 vy_mps=float(m[3]),
                 covariance=cov.reshape(-1).tolist(),
@@ -1474,6 +1541,8 @@ class Tracker:
                 look_track_id=look_id,
                 look_x_m=lx,
                 look_y_m=ly,
+                shift_x_m=float(t.shift[0]),
+                shift_y_m=float(t.shift[1]),
             )
         else:
             x, y = (0.0, 0.0) if self._lost_at is None else map(float, self._lost_at)
@@ -1514,11 +1583,12 @@ class Tracker:
             if t.hits < s.confirm_hits and t.id != self.target_id:
                 continue
             m = t.estimator.mean
+            xy = t.reported if t.id == self.target_id else m[:2]
             tracks.append(
                 PersonTrack(
                     id=t.id,
-                    x_m=float(m[0]),
-                    y_m=float(m[1]),
+                    x_m=float(xy[0]),
+                    y_m=float(xy[1]),
                     vx_mps=float(m[2]),
                     vy_mps=float(m[3]),
                     covariance=t.estimator.covariance.reshape(-1).tolist(),

@@ -9,6 +9,7 @@ import queue
 import signal
 import time
 
+import msgspec
 import pytest
 
 from followbot.schemas import (
@@ -146,6 +147,15 @@ def test_laser_pose_in_base_moves_the_prediction():
     same = TargetPredictor(laser_pose=(0.5, 0.0, 0.0))
     same.add_target(target(0, 2.0, 0.8, frame="base_laser"))  # already the scan's frame
     assert same.predict(two_people(100 * MS)) == pytest.approx((2.0, 0.8))
+
+
+def test_the_prediction_is_the_tracker_s_filter_estimate_without_its_lone_leg_shift():
+    """TrackState.shift_*: the tracker reports a lone leg's person centre farther out
+    (lone_leg_output_m) but associates at its filter's estimate; criterion 3 gates there."""
+    p = TargetPredictor()
+    t = msgspec.structs.replace(target(0, 2.1, 0.8), shift_x_m=0.1, shift_y_m=-0.05)
+    p.add_target(t)
+    assert p.predict(two_people(100 * MS)) == pytest.approx((2.0, 0.85))
 
 
 def test_odometry_interpolates_and_extrapolates_with_the_twist():

@@ -1530,3 +1530,62 @@ def test_a_lone_leg_is_not_moved_out_towards_someone_near_it():
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(seen(k * SCAN_NS))
     assert target.status == "tracking" and target.x_m == pytest.approx(1.9, abs=0.03)
+
+
+def _one_or_two_legs(stamp_ns, legs, x_m=1.9, behind=None):
+    if legs == 1:
+        leg = [Leg(x_m=x_m, y_m=0.0, first_beam=10, last_beam=14)]
+    else:
+        leg = [Leg(x_m=x_m, y_m=-0.1, first_beam=10, last_beam=14),
+               Leg(x_m=x_m, y_m=0.1, first_beam=20, last_beam=24)]  # fmt: skip
+    cands = [Candidate(x_m=x_m, y_m=0.0, range_m=x_m, bearing_rad=0.0, legs=leg)]
+    if behind is not None:
+        cands.append(Candidate(x_m=behind, y_m=0.0, range_m=behind, bearing_rad=0.0))
+    return PersonCandidates(stamp_ns=stamp_ns, frame_id="base_laser", n_beams=100, candidates=cands)
+
+
+def test_lone_leg_output_reports_the_centre_behind_a_lone_leg_and_keeps_the_filter_on_it():
+    """lone_leg_output_m: a person 2 m ahead showing only the near leg (1.9 m) is reported at
+    2.0 m, in tracking/target and in the target's tracking/people entry, while the filter
+    (what association and gates use) stays on the leg; once both legs show (the centre, 1.9 m
+    here) the shift fades and the report is the filter's estimate again."""
+    trk = Tracker(TrackerSettings(acquire="nearest", lone_leg_output_m=0.1))
+    for k in range(30):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(_one_or_two_legs(k * SCAN_NS, 1))
+    assert target.status == "tracking"
+    assert target.x_m == pytest.approx(2.0, abs=0.02) and abs(target.y_m) < 0.02
+    filt = trk.tracks[target.track_id].position
+    assert filt[0] == pytest.approx(1.9, abs=0.02)
+    assert (target.x_m - target.shift_x_m, target.y_m - target.shift_y_m) == pytest.approx(filt)
+    (mine,) = [p for p in people.tracks if p.id == target.track_id]
+    assert (mine.x_m, mine.y_m) == (target.x_m, target.y_m)
+    for k in range(30, 60):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(_one_or_two_legs(k * SCAN_NS, 2))
+    shift = target.x_m - trk.tracks[target.track_id].position[0]
+    assert abs(shift) < 0.002 and target.x_m == pytest.approx(1.9, abs=0.03)
+
+
+def test_lone_leg_output_leaves_whom_the_target_takes_unchanged():
+    """Unlike lone_leg_offset_m (test_a_lone_leg_is_not_moved_out_towards_someone_near_it's
+    case without lone_leg_clear_m), reporting the centre does not move the filter towards
+    someone 0.35 m behind the lone leg: the association of every scan, and so the filter's
+    estimate, is the thesis's, bit for bit."""
+    runs = {}
+    for name, extra in (("thesis", {}), ("output", {"lone_leg_output_m": 0.1})):
+        trk = Tracker(TrackerSettings(acquire="nearest", seed=3, **extra))
+        seen = []
+        for k in range(41):  # (ending on a lone leg)
+            still_robot(trk, k * SCAN_NS)
+            x = 1.9 + 0.01 * k
+            target, _ = trk.step(_one_or_two_legs(k * SCAN_NS, 1 + k % 2, x, behind=x + 0.35))
+            seen.append((target.track_id, *trk.tracks[target.track_id].position))
+        runs[name] = (seen, target)
+    assert runs["output"][0] == runs["thesis"][0]
+    assert runs["output"][1].x_m > runs["thesis"][1].x_m + 0.02  # (reported farther out)
+
+
+def test_lone_leg_output_and_offset_are_not_both_accepted():
+    with pytest.raises(ValueError, match="set one"):
+        TrackerSettings(lone_leg_output_m=0.1, lone_leg_offset_m=0.1)

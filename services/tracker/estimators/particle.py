@@ -277,6 +277,20 @@ class ParticleEstimator:
         deviations."""
         p = self.particles
         self._cov = None
+        w = self._weights(p, point, noise_scale)
+        self._mean = p @ w  # eq. 3-38
+        self._w = w
+
+    def mean_if(self, point: np.ndarray, noise_scale: float = 1.0) -> np.ndarray:
+        """(4,) the estimate the last update would have given had it measured ``point``: the
+        same cloud (the prediction it weighed) weighed for another measurement. Only between
+        an update and the resampling that follows it (:meth:`settle`)."""
+        if self._w is None:
+            raise RuntimeError("mean_if needs an update not yet resampled")
+        return self._p @ self._weights(self._p, point, noise_scale)
+
+    def _weights(self, p: np.ndarray, point: np.ndarray, noise_scale: float) -> np.ndarray:
+        """(m,) normalised weights of cloud ``p`` for the measurement ``point`` (eq. 3-36)."""
         zx, zy = float(point[0]), float(point[1])
         d_m = math.hypot(zx, zy)
         a_m = math.atan2(zy, zx)
@@ -296,8 +310,7 @@ class ParticleEstimator:
         dd -= dd.max()  # the best particle gets exp(0): no underflow to all-zero weights
         w = np.exp(dd, out=dd)
         w /= w.sum()
-        self._mean = p @ w  # eq. 3-38
-        self._w = w
+        return w
 
     def expired(self) -> bool:
         return False
