@@ -54,6 +54,7 @@ __all__ = [
     "gate_xy",
     "horizon",
     "inscribed_angle_stats",
+    "jump_cuts",
     "pair_legs",
     "paired_candidates",
     "prepare",
@@ -240,15 +241,41 @@ _EMPTY = np.zeros(0, dtype=np.intp)
 _EMPTY.flags.writeable = False
 
 
-def cluster_by_jump(b: Beams, max_jump_m: float) -> Clusters:
-    """Split the scan where ``|r_k - r_{k-1}| >= max_jump_m`` or a beam has no return.
+def jump_cuts(rpp: np.ndarray, max_jump_m: float, bridge_m: float | None = None) -> np.ndarray:
+    """Where runs start: indices k (0..n) with ``|rpp[k+1] - rpp[k]| >= max_jump_m``, for
+    ranges ``rpp`` padded with :data:`NO_RETURN` (n + 2 long).
+
+    ``bridge_m`` (beyond the thesis): a jump shorter than that is a cut only when it holds
+    one beam farther on both sides, ``|r_{k+1} - r_{k-1}| >= max_jump_m`` and ``|r_k -
+    r_{k-2}| >= max_jump_m`` (beams k-1 | k). An edge (a leg against what lies behind it)
+    holds; a step of range noise inside a leg does not: with 15 mm noise per beam the
+    difference of two beams exceeds 60 mm in ~0.5 % of the pairs, a leg at 1.5 m has ~9
+    pairs, and a leg cut in two fails the point count and width tests (docs/laser_legs.md,
+    "Noise inside a leg"). A beam without return always cuts, and jumps of bridge_m or more
+    always cut (one background beam seen between two legs at one range stays a gap).
+    """
+    d = np.abs(np.diff(rpp))
+    big = d >= max_jump_m
+    if bridge_m is not None and bridge_m > max_jump_m and rpp.shape[0] > 3:
+        across = np.abs(rpp[2:] - rpp[:-2])  # across[j] = |rpp[j + 2] - rpp[j]|
+        inner = big[1:-1]
+        held = (across[1:] >= max_jump_m) & (across[:-1] >= max_jump_m)
+        held |= d[1:-1] >= bridge_m
+        held |= (rpp[1:-2] < 0) | (rpp[2:-1] < 0)  # a no-return beam on either side
+        inner &= held
+    return np.flatnonzero(big)
+
+
+def cluster_by_jump(b: Beams, max_jump_m: float, bridge_m: float | None = None) -> Clusters:
+    """Split the scan where ``|r_k - r_{k-1}| >= max_jump_m`` or a beam has no return
+    (``bridge_m``: :func:`jump_cuts`).
 
     thesis 3.4.1 eq. 3-6 / 4.3.1: adjacent readings closer than 60 mm share a cluster.
     Beams without return carry :data:`NO_RETURN`, as do the pads before the first and after
     the last beam, so every jump to or from them is a cut and validity costs no extra pass.
     """
     # cut[i] = k: a run starts at beam k (k in 0..n); runs are cut[i] .. cut[i+1] - 1
-    cut = np.flatnonzero(np.abs(np.diff(b.rpp)) >= max_jump_m)
+    cut = jump_cuts(b.rpp, max_jump_m, bridge_m)
     starts = cut[:-1]
     keep = b.valid[starts]
     return Clusters(starts[keep], cut[1:][keep] - 1)

@@ -39,6 +39,7 @@ _EARLIER_BACKGROUND = {"background_static_fraction": 0.9, "background_penalty": 
 #: Variants worth a row beside the defaults: name -> (detector, settings overrides).
 VARIANTS: dict[str, tuple[str, dict]] = {
     "thesis_noclip": ("thesis", {"clip_range_m": None}),
+    "thesis_bridge": ("thesis", {"cluster_bridge_m": 0.12}),
     "arc_noclip": ("arc", {"clip_range_m": None}),
     # the learned detector without its temporal confirmation (tracks), at the thresholds
     # chosen without it; and without the static background too

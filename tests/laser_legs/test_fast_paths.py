@@ -3,6 +3,7 @@ helpers (the reference below is the detector as first written, criterion by crit
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -25,7 +26,7 @@ from followbot.services.laser_legs.scene import make_scan, person_legs
 
 def reference_legs(s: ThesisSettings, scan: LaserScan, prediction=None) -> LegSet:
     b = prepare(scan, s.clip_range_m)
-    c = cluster_by_jump(b, s.cluster_jump_m)
+    c = cluster_by_jump(b, s.cluster_jump_m, s.cluster_bridge_m)
     if len(c) == 0:
         return LegSet.empty()
     gaps = c.ends - c.starts
@@ -65,6 +66,7 @@ VARIANTS = [
     ThesisSettings(),
     ThesisSettings(clip_range_m=None),
     ThesisSettings(scale_count_with_range=False),
+    ThesisSettings(cluster_bridge_m=0.12),
 ]
 
 
@@ -128,3 +130,28 @@ def test_fast_thesis_equals_reference_on_random_ranges(ranges):
     )
     assert scan.ranges.shape[0] == n
     same(ClusterLegDetector().legs(scan), reference_legs(ThesisSettings(), scan))
+
+
+def _runs(ranges, bridge):
+    from followbot.services.laser_legs.core import NO_RETURN, jump_cuts
+
+    rpp = np.array([NO_RETURN, *[NO_RETURN if r is None else r for r in ranges], NO_RETURN])
+    cut = jump_cuts(rpp, 0.06, bridge).tolist()
+    return [(a, b - 1) for a, b in itertools.pairwise(cut) if rpp[a + 1] > 0]
+
+
+def test_bridging_keeps_a_noisy_leg_whole_and_every_real_edge():
+    """cluster_bridge_m: the recorded case (crowd_ten, 23.52 s) -- a leg at 1.35-1.41 m whose
+    noise steps 71 mm between two beams -- is one run, not two; the leg's edges against the
+    background, a single background beam between two legs at one range, and a beam without
+    return still cut."""
+    leg = [1.379, 1.349, 1.384, 1.365, 1.351, 1.393, 1.322, 1.375, 1.393, 1.413]
+    ranges = [7.7, 7.7, *leg, 7.45, 7.44]
+    assert _runs(ranges, None) == [(0, 1), (2, 7), (8, 11), (12, 13)]  # the thesis: cut in two
+    assert _runs(ranges, 0.12) == [(0, 1), (2, 11), (12, 13)]
+    gap = [1.5, 1.5, 1.5, 1.5, 7.0, 1.5, 1.5, 1.5, 1.5]
+    assert _runs(gap, 0.12) == [(0, 3), (4, 4), (5, 8)]
+    dropout = [1.5, 1.5, 1.5, None, 1.5, 1.5, 1.5]
+    assert _runs(dropout, 0.12) == [(0, 2), (4, 6)]
+    step = [1.5, 1.5, 1.5, 1.58, 1.58, 1.58]  # a real 80 mm step, held on both sides
+    assert _runs(step, 0.12) == [(0, 2), (3, 5)]

@@ -59,6 +59,7 @@ from ..core import (
     empty_candidates,
     gate,
     gate_xy,
+    jump_cuts,
     paired_candidates,
     person,
 )
@@ -99,6 +100,10 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
     clip_range_m: float | None = 3.5  # thesis 4.3.1: ranges > 3.5 m set to 3.5 m
     cluster_jump_m: float = 0.060  # thesis 4.3.1: 60 mm
+    cluster_bridge_m: float | None = None
+    """Beyond the thesis: a jump shorter than this is a cut only when it holds one beam
+    farther on both sides, so range noise does not cut a leg in two (core.jump_cuts; > 60 mm
+    to take effect). None: the thesis's cut at every jump of 60 mm or more."""
     min_points_ref: float = 5.0  # thesis 4.3.1 eq. 4-4: 5 < points
     max_points_ref: float = 40.0  # thesis 4.3.1 eq. 4-4: points < 40
     ref_increment_rad: float = math.radians(0.5)  # thesis 4.1: 0.5 deg scanner
@@ -192,6 +197,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
         for name in ("cluster_jump_m", "ref_increment_rad", "ref_range_m", "gate_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
+        if self.cluster_bridge_m is not None and not self.cluster_bridge_m > self.cluster_jump_m:
+            raise ValueError("cluster_bridge_m must be above cluster_jump_m (or null: off)")
         if not 0 <= self.leg_centre_factor <= 1:
             raise ValueError("leg_centre_factor must be in [0, 1]")
         if not (self.lone_leg_offset_m >= 0 and self.lone_leg_clear_m >= 0):
@@ -266,9 +273,12 @@ class ClusterLegDetector:
         # eq. 3-6: a run of beams with |r_k - r_k-1| < 60 mm (no-return beams always cut).
         # Runs are contiguous: run i is beams cut[i] .. cut[i + 1] - 1; runs of no-return beams
         # have r = NO_RETURN < 0 and fail the count test below.
-        d = np.subtract(rpp[1:], rpp[:-1])
-        np.abs(d, out=d)
-        cut = (d >= s.cluster_jump_m).nonzero()[0]
+        if s.cluster_bridge_m is None:
+            d = np.subtract(rpp[1:], rpp[:-1])
+            np.abs(d, out=d)
+            cut = (d >= s.cluster_jump_m).nonzero()[0]
+        else:
+            cut = jump_cuts(rpp, s.cluster_jump_m, s.cluster_bridge_m)
         if cut.shape[0] < 2:
             return [], [], []
         rp = rpp[1:]  # n + 1 long, so the last cut (<= n) is a valid index
