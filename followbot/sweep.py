@@ -38,6 +38,7 @@ import argparse
 import concurrent.futures
 import json
 import math
+import multiprocessing
 import sys
 import tempfile
 from pathlib import Path
@@ -295,7 +296,10 @@ def main(argv: list[str] | None = None) -> int:
             todo.append((scenario, seed))
     failures: dict[str, str] = {}
     done = len(metrics)
-    with concurrent.futures.ProcessPoolExecutor(max_workers=args.jobs) as pool:
+    # spawn, not fork: a forked worker inherits a parent's threads' locks (Zenoh's, a test
+    # runner's) in whatever state they were, and can hang on them
+    spawn = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(max_workers=args.jobs, mp_context=spawn) as pool:
         futures = {
             pool.submit(_one_run, scenario, seed, args.set, str(out)): (scenario, seed)
             for scenario, seed in todo
