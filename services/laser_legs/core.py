@@ -45,6 +45,7 @@ __all__ = [
     "LegSet",
     "Prediction",
     "beam_geometry",
+    "bridged",
     "candidates_message",
     "cluster_by_jump",
     "cluster_min",
@@ -255,15 +256,32 @@ def jump_cuts(rpp: np.ndarray, max_jump_m: float, bridge_m: float | None = None)
     always cut (one background beam seen between two legs at one range stays a gap).
     """
     d = np.abs(np.diff(rpp))
-    big = d >= max_jump_m
-    if bridge_m is not None and bridge_m > max_jump_m and rpp.shape[0] > 3:
-        across = np.abs(rpp[2:] - rpp[:-2])  # across[j] = |rpp[j + 2] - rpp[j]|
-        inner = big[1:-1]
-        held = (across[1:] >= max_jump_m) & (across[:-1] >= max_jump_m)
-        held |= d[1:-1] >= bridge_m
-        held |= (rpp[1:-2] < 0) | (rpp[2:-1] < 0)  # a no-return beam on either side
-        inner &= held
-    return np.flatnonzero(big)
+    cut = np.flatnonzero(d >= max_jump_m)
+    return bridged(rpp, d, cut, max_jump_m, bridge_m)
+
+
+def bridged(
+    rpp: np.ndarray, d: np.ndarray, cut: np.ndarray, max_jump_m: float, bridge_m: float | None
+) -> np.ndarray:
+    """``cut`` (the jumps ``d`` of at least ``max_jump_m``) without the jumps below
+    ``bridge_m`` that do not hold one beam farther on both sides (:func:`jump_cuts`). Only
+    those few jumps are looked at, in plain Python: the scan-long work stays one comparison."""
+    if bridge_m is None or not bridge_m > max_jump_m or cut.shape[0] == 0:
+        return cut
+    soft = cut[d[cut] < bridge_m]
+    if soft.shape[0] == 0:
+        return cut
+    # both beams of a soft jump return (a jump to NO_RETURN is never soft), so 1 <= k and
+    # k + 1 <= n: rpp[k - 1] and rpp[k + 2] exist (a pad there is NO_RETURN: the jump holds)
+    drop = [
+        k
+        for k in soft.tolist()
+        if abs(float(rpp[k + 2]) - float(rpp[k])) < max_jump_m
+        or abs(float(rpp[k + 1]) - float(rpp[k - 1])) < max_jump_m
+    ]
+    if not drop:
+        return cut
+    return cut[~np.isin(cut, drop)]
 
 
 def cluster_by_jump(b: Beams, max_jump_m: float, bridge_m: float | None = None) -> Clusters:

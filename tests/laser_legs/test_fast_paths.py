@@ -66,7 +66,7 @@ VARIANTS = [
     ThesisSettings(),
     ThesisSettings(clip_range_m=None),
     ThesisSettings(scale_count_with_range=False),
-    ThesisSettings(cluster_bridge_m=0.12),
+    ThesisSettings(cluster_bridge_m=None),
 ]
 
 
