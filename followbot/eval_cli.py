@@ -30,7 +30,7 @@ def builtin_scenarios() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from followbot.runner import RunError, apply_stage_overrides, run_scenario, stage_settings
+    from followbot.runner import RunError, check_stage_overrides, run_scenario
     from followbot.services.runtime.compose import PRESETS
     from followbot.services.sim.node import load_scenario_setting
     from followbot.services.sim.scenario import ScenarioError
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"followbot eval: {exc}", file=sys.stderr)
             return 2
     try:  # a malformed --set stops everything before any run
-        apply_stage_overrides({**stage_settings(presets[0], True), "sim": {}}, args.set)
+        check_stage_overrides(presets[0], args.set)
     except RunError as exc:
         print(f"followbot eval: {exc}", file=sys.stderr)
         return 2

@@ -142,6 +142,12 @@ def apply_stage_overrides(settings: dict[str, dict[str, Any]], overrides: list[s
             raise RunError(f"--set {item!r}: {exc}") from exc
 
 
+def check_stage_overrides(preset: str, overrides: list[str]) -> None:
+    """Apply ``overrides`` to a throw-away copy of ``preset``'s settings (and the sim's), so a
+    malformed ``--set`` raises :class:`RunError` before any run starts."""
+    apply_stage_overrides({**stage_settings(preset, True), "sim": {}}, overrides)
+
+
 def run_scenario(
     scenario: str,
     preset: str,

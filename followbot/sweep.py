@@ -195,8 +195,8 @@ def report(
 
 
 def _one_run(scenario: str, seed: int | None, overrides: list[str], out: str) -> dict:
-    """Run one (scenario, seed) in this (worker) process; its metrics, without the plots'
-    series."""
+    """Run one (scenario, seed) with the thesis preset in this (worker) process; its metrics
+    as plain JSON values."""
     from followbot.evaluation import compute_metrics
     from followbot.runner import run_scenario
 
@@ -212,7 +212,7 @@ def _one_run(scenario: str, seed: int | None, overrides: list[str], out: str) ->
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.eval_cli import builtin_scenarios
-    from followbot.runner import RunError, apply_stage_overrides, stage_settings
+    from followbot.runner import RunError, check_stage_overrides
 
     p = argparse.ArgumentParser(
         prog="followbot sweep", description=__doc__,
@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         print("followbot sweep: --jobs must be at least 1", file=sys.stderr)
         return 2
     try:
-        apply_stage_overrides({**stage_settings("thesis", True), "sim": {}}, args.set)
+        check_stage_overrides("thesis", args.set)
     except RunError as exc:
         print(f"followbot sweep: {exc}", file=sys.stderr)
         return 2

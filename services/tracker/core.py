@@ -683,10 +683,9 @@ class Tracker:
                 if rotation is not None:
                     t.estimator.ego_motion(rotation, translation)
                 t.estimator.predict(dt, t.misses)
-        if rotation is not None:
-            for t in self.tracks.values():
-                if t.shift.any():
-                    t.shift = rotation @ t.shift  # a vector: turns with the base, no translation
+        shifted = self.tracks.get(self.target_id) if s.lone_leg_output_m else None
+        if rotation is not None and shifted is not None:
+            shifted.shift = rotation @ shifted.shift  # a vector: turns, no translation
         if s.coast_velocity_s > 0:
             for t in self.tracks.values():  # hidden since the last scan: moving on (settings)
                 if t.misses > 0 and t.steps and getattr(t.estimator, "coasts_in_place", False):
@@ -942,22 +941,22 @@ class Tracker:
         is k b along the bearing, so the update keeps 1 - k of the earlier shift and, for a
         lone leg, adds ``moved``."""
         b = self.settings.lone_leg_output_m
-        for i, t in enumerate(updated):
-            if t.id != self.target_id:
-                continue
-            mean_if = getattr(t.estimator, "mean_if", None)
-            r = float(np.hypot(*zs[i]))
-            if mean_if is None or not r > 0:
-                return
-            u = zs[i] / r
-            moved = mean_if(zs[i] + b * u, 1.0 if scales is None else float(scales[i]))[:2]
-            moved -= t.estimator.mean[:2]
-            if not np.isfinite(moved).all():
-                t.shift = np.zeros(2)
-                return
-            k = min(max(float(moved @ u) / b, 0.0), 1.0)
-            t.shift = (1.0 - k) * t.shift + (moved if lone[i] else 0.0)
+        i = next((i for i, t in enumerate(updated) if t.id == self.target_id), None)
+        if i is None:
+            return  # the target was not updated: its shift stays
+        t = updated[i]
+        mean_if = getattr(t.estimator, "mean_if", None)
+        r = float(np.hypot(*zs[i]))
+        if mean_if is None or not r > 0:
             return
+        u = zs[i] / r
+        moved = mean_if(zs[i] + b * u, 1.0 if scales is None else float(scales[i]))[:2]
+        moved -= t.estimator.mean[:2]
+        if not np.isfinite(moved).all():
+            t.shift = np.zeros(2)
+            return
+        k = min(max(float(moved @ u) / b, 0.0), 1.0)
+        t.shift = (1.0 - k) * t.shift + (moved if lone[i] else 0.0)
 
     def step_rest(self) -> People:
         """Finish the scan :meth:`step_target` began; returns its People message."""
@@ -1242,9 +1241,10 @@ class Tracker:
         self._searching = False
         if self.target_id >= 0 and tid != self.target_id:
             self.target_switches += 1
-        for i in {self.target_id, tid} if tid != self.target_id else ():
-            if i in self.tracks:
-                self.tracks[i].shift = np.zeros(2)  # kept for the target only, from now on
+        if tid != self.target_id:  # the shift is kept for the target only, from now on
+            for i in (self.target_id, tid):
+                if i in self.tracks:
+                    self.tracks[i].shift = np.zeros(2)
         self.target_id = tid
         self._confirmed_index = self._index - 1  # chosen by vision (or a model) just now
         self._had_target = True
