@@ -27,6 +27,7 @@ from followbot.services.tracker.core import (
     Tracker,
     TrackerSettings,
     hidden_from_laser,
+    occluder_edge,
     se2_change,
     thesis_printed_transform,
     transform_points,
@@ -1183,6 +1184,86 @@ def test_hidden_from_laser_tells_covered_and_unseen_points_from_free_ones():
     assert not hidden_from_laser(points[:1], nan_h, 0.3, 0.2).any()
 
 
+def _bearing_deg(p):
+    return math.degrees(math.atan2(p[1], p[0]))
+
+
+def test_occluder_edge_is_past_the_cover_on_the_side_the_person_walks_towards():
+    """A pillar 1.5 m ahead covers bearings -10..10 deg (bins [-10, 11) deg); a person hidden
+    3 m behind it comes out at the edge they walk towards, their centre a body's half-width
+    (0.2 m, 3.8 deg at 3 m) clear of it, at the range they had."""
+    h = horizon_of([(-10, 10, 1.5)])
+    half = math.degrees(math.atan2(0.2, 3.0))
+    left = occluder_edge(np.array([3.0, 0.0]), np.array([0.0, 0.5]), h, 0.3, 0.2)
+    right = occluder_edge(np.array([3.0, 0.0]), np.array([0.0, -0.5]), h, 0.3, 0.2)
+    assert _bearing_deg(left) == pytest.approx(11.0 + half, abs=1e-6)
+    assert _bearing_deg(right) == pytest.approx(-10.0 - half, abs=1e-6)
+    assert np.hypot(*left) == pytest.approx(3.0) and np.hypot(*right) == pytest.approx(3.0)
+    # walking straight away (no speed across the line of sight): the nearer edge
+    h2 = horizon_of([(-4, 20, 1.5)])
+    away = occluder_edge(np.array([3.0, 0.0]), np.array([0.5, 0.0]), h2, 0.3, 0.2)
+    assert _bearing_deg(away) == pytest.approx(-4.0 - half, abs=1e-6)
+
+
+def test_occluder_edge_answers_none_where_it_cannot_tell():
+    """Not hidden (free, or at the pillar itself), outside the view, cover reaching the end of
+    the view, or no position: None."""
+    pillar = horizon_of([(-10, 10, 1.5)])
+    v = np.array([0.0, 0.5])
+    assert occluder_edge(np.array([3.0, 2.0]), v, pillar, 0.3, 0.2) is None  # in free space
+    assert occluder_edge(np.array([1.45, 0.0]), v, pillar, 0.3, 0.2) is None  # seen there
+    assert occluder_edge(np.array([-2.0, 0.1]), v, pillar, 0.3, 0.2) is None  # behind the view
+    assert occluder_edge(np.array([np.nan, 1.0]), v, pillar, 0.3, 0.2) is None
+    wall = horizon_of([(-20, 134, 1.5)])  # up to the view's end at 135 deg
+    assert occluder_edge(np.array([3.0, 0.0]), v, wall, 0.3, 0.2) is None
+    # the other way round it does end
+    back = occluder_edge(np.array([3.0, 0.0]), -v, wall, 0.3, 0.2)
+    assert _bearing_deg(back) == pytest.approx(-20.0 - math.degrees(math.atan2(0.2, 3.0)))
+
+
+def test_occluder_edge_wraps_round_a_full_circle_horizon():
+    """360 deg horizon from -180 deg: cover over 170..-170 deg (across the wrap); a person
+    hidden at 180 deg walking towards -y (clockwise, bearing falling past 180 deg) comes out
+    at 170 deg."""
+    ranges = np.full(360, 6.0, dtype=np.float32)
+    ranges[:10] = 1.0  # [-180, -170)
+    ranges[350:] = 1.0  # [170, 180)
+    h = Horizon(
+        angle_min_rad=-math.pi, increment_rad=math.radians(1.0), ranges=Array.from_numpy(ranges)
+    )
+    p = np.array([-3.0, 0.0])
+    half = math.degrees(math.atan2(0.2, 3.0))
+    ccw = occluder_edge(p, np.array([0.0, -0.5]), h, 0.3, 0.2)  # bearing rising through 180
+    cw = occluder_edge(p, np.array([0.0, 0.5]), h, 0.3, 0.2)
+    assert _bearing_deg(ccw) == pytest.approx(-170.0 + half, abs=1e-6)
+    assert _bearing_deg(cw) == pytest.approx(170.0 - half, abs=1e-6)
+
+
+@pytest.mark.parametrize("edge", [True, False])
+def test_while_lost_behind_a_pillar_the_camera_looks_where_the_target_comes_out(edge):
+    """look_occluder_edge: the target walks left behind a pillar 1 m ahead (bearings -5..50
+    deg) and is lost; with nobody to look at, the camera looks past the pillar's left edge,
+    not at the hidden point where the target should be. Off: at that point."""
+    trk = following_at_two(look_gate_m=0.5, look_occluder_edge=edge)
+    pillar = horizon_of([(-5, 50, 1.0)])
+    for k in range(1, 16):
+        still_robot(trk, k * SCAN_NS)
+        trk.step(cands(k * SCAN_NS, (2.0, 0.06 * k)))
+        trk.add_verification(verification(k * SCAN_NS, [(2.0, 0.06 * k)], chosen=0))
+    for k in range(16, 28):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS), horizon=pillar))
+    assert target.status == "lost" and target.look_track_id == -1
+    where = trk._predicted_lost()
+    assert 0.0 < _bearing_deg(where) < 50.0  # behind the pillar
+    look = (target.look_x_m, target.look_y_m)
+    if edge:
+        assert _bearing_deg(look) > 51.0
+        assert np.hypot(*look) == pytest.approx(np.hypot(*where))
+    else:
+        assert look == pytest.approx(tuple(where))
+
+
 def _walk_behind(trk, horizon_while_hidden, hidden_scans, reappear=True):
     """A person walks across at 0.6 m/s, 2.5 m ahead, while the robot stands; for
     ``hidden_scans`` scans the laser sees no legs (and ``horizon_while_hidden``); returns
@@ -1344,17 +1425,25 @@ def _hidden_walk_with_vision(trk, hidden_scans, extra=()):
     return tid, outputs, 15 + hidden_scans
 
 
-def test_a_target_hidden_past_the_miss_budget_is_searched_for_while_its_track_coasts():
+@pytest.mark.parametrize("edge", [False, True])
+def test_a_target_hidden_past_the_miss_budget_is_searched_for_while_its_track_coasts(edge):
     """occlusion_look: within the thesis's 8 misses nothing changes; from the 9th the camera
     is asked to look where the target should be (as for a lost target, same gate), while the
-    status stays coasting on the hidden track; the person taken back where they come out."""
-    trk = Tracker(TrackerSettings(occlusion_max_s=3.0))
+    status stays coasting on the hidden track; the person taken back where they come out.
+    With look_occluder_edge (the default) the camera looks past the end of the wall that hides
+    that point (at 60 deg), on the side the walker went, at the point's range."""
+    trk = Tracker(TrackerSettings(occlusion_max_s=3.0, look_occluder_edge=edge))
     tid, outputs, k = _hidden_walk_with_vision(trk, 12)
     assert all(o.status == "coasting" and o.track_id == tid for o in outputs)
     assert all(o.look_track_id == -1 and (o.look_x_m, o.look_y_m) == (0, 0) for o in outputs[:8])
     searching = outputs[8:]
-    assert all(o.look_x_m == pytest.approx(2.5, abs=0.3) for o in searching)
-    assert searching[-1].look_y_m > searching[0].look_y_m  # moving on with the walker
+    if edge:
+        bearings = [math.degrees(math.atan2(o.look_y_m, o.look_x_m)) for o in searching]
+        assert all(61.0 < b < 70.0 for b in bearings)
+        assert all(math.hypot(o.look_x_m, o.look_y_m) < 2.8 for o in searching)
+    else:
+        assert all(o.look_x_m == pytest.approx(2.5, abs=0.3) for o in searching)
+        assert searching[-1].look_y_m > searching[0].look_y_m  # moving on with the walker
     assert trk._searching
     # they come out where the track expects them: taken back by the laser, the search over
     still_robot(trk, k * SCAN_NS)
