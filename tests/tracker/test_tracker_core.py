@@ -407,6 +407,35 @@ def following_at_two(**settings) -> Tracker:
     return trk
 
 
+@pytest.mark.parametrize(
+    ("assignment", "takes_own_leg"), [("most_matches", False), ("weighted", True)]
+)
+def test_weighted_assignment_does_not_give_the_target_s_candidate_away(assignment, takes_own_leg):
+    """crowd_ten's own seed at 36.48 s, in small: the target stands at (2, 0); a track 0.6 m to
+    its right has missed 8 scans (gate 0.74 m). The target's own leg is seen 0.05 m from it,
+    and 0.33 m to its left a cross pair (its far leg with a passer-by's) that the old track
+    cannot reach. Most matches: the target takes the cross pair so the old track can take the
+    leg (0.33 + 0.55). Weighted: the target keeps its leg, the old track misses (widest gate
+    0.74 - d: 0.69 against 0.41 + 0.19)."""
+    trk = Tracker(TrackerSettings(acquire="nearest", assignment=assignment))
+    target, other = (2.0, 0.0), (2.0, -0.6)
+    for k in range(10):
+        still_robot(trk, k * SCAN_NS)
+        out, _ = trk.step(cands(k * SCAN_NS, target, other))
+    tid = out.track_id
+    for k in range(10, 18):
+        still_robot(trk, k * SCAN_NS)
+        out, people = trk.step(cands(k * SCAN_NS, target))
+    old = [t for t in people.tracks if t.id != tid]
+    assert out.track_id == tid and [t.misses for t in old] == [8]
+    own_leg, cross = (2.0, -0.05), (2.0, 0.33)
+    still_robot(trk, 18 * SCAN_NS)
+    out, _ = trk.step(cands(18 * SCAN_NS, own_leg, cross))
+    assert out.track_id == tid and out.status == "tracking"
+    assert (abs(out.y_m - own_leg[1]) < 0.1) == takes_own_leg
+    assert (abs(out.y_m - cross[1]) < 0.15) == (not takes_own_leg)
+
+
 def test_status_initialising_tracking_coasting_then_lost_after_more_than_8_misses():
     trk = Tracker(TrackerSettings())
     still_robot(trk, 0)
