@@ -48,7 +48,7 @@ import cv2
 import msgspec
 import numpy as np
 
-from followbot.schemas import Array, TargetModel
+from followbot.schemas import Array, Horizon, TargetModel
 
 __all__ = [
     "COLOUR_BINS",
@@ -67,6 +67,7 @@ __all__ = [
     "colour_histogram",
     "confident",
     "edge_histogram",
+    "horizon_covers",
     "judge",
     "occlude",
     "project",
@@ -233,7 +234,62 @@ def project(
     return views
 
 
-def occlude(views: Sequence[View], min_visible_fraction: float, min_side_px: int = 8) -> None:
+def horizon_covers(
+    camera: Camera,
+    horizon: Horizon,
+    pan_rad: float,
+    half_width_m: float,
+    max_leg_m: float = 0.25,
+    jump_m: float = 0.1,
+) -> np.ndarray:
+    """(k, 3) ``depth, u0, u1``: the image columns that the person above each leg-like laser
+    return of ``horizon`` (the scan's nearest return per bearing bin, laser frame) would hide,
+    with its camera depth; only returns in front of the camera whose columns reach into the
+    image. The laser sees at leg height what stands between the camera and a candidate: a
+    passer-by that the detector did not report (thesis criterion 3 keeps only legs near the
+    target) still hides the target.
+
+    Leg-like: a run of neighbouring bins whose ranges step less than ``jump_m``, whose end
+    points lie at most ``max_leg_m`` apart, and which stands in front of both its neighbours
+    (each farther by ``jump_m`` or more, or no return): a piece of a wall between two nearer
+    legs is narrow too, but lies behind them. Each of its returns is widened
+    ``half_width_m`` to each side (the body above the leg). Wider runs -- walls, a pillar's
+    face, furniture -- say nothing of what stands above them and hide nothing here (widened,
+    they hid a target coming out beside a pillar: 76 closed-loop runs, docs/tracker.md)."""
+    r = horizon.ranges.numpy().astype(np.float64)
+    n = r.shape[0]
+    centre = horizon.angle_min_rad + (np.arange(n) + 0.5) * horizon.increment_rad
+    seen = np.isfinite(r)
+    x, y = np.where(seen, r, 0.0) * np.cos(centre), np.where(seen, r, 0.0) * np.sin(centre)
+    # runs of neighbouring returns: a break at a missing return or a range step
+    with np.errstate(invalid="ignore"):
+        step = ~(seen[1:] & seen[:-1] & (np.abs(np.diff(r)) < jump_m))
+    starts = np.flatnonzero(np.concatenate(([True], step)))
+    ends = np.concatenate((starts[1:], [n])) - 1
+    width = np.hypot(x[ends] - x[starts], y[ends] - y[starts])
+    padded = np.concatenate(([np.inf], np.where(seen, r, np.inf), [np.inf]))
+    with np.errstate(invalid="ignore"):
+        front = (padded[starts] >= r[starts] + jump_m) & (padded[ends + 2] >= r[ends] + jump_m)
+    leg_run = np.repeat((width <= max_leg_m) & front, ends - starts + 1)
+    keep = seen & leg_run
+    r, x, y = r[keep], x[keep], y[keep]
+    xc, yc = camera.to_camera(x, y, pan_rad)
+    front = xc >= camera.min_depth_m
+    xc, yc, r = xc[front], yc[front], r[front]
+    half = half_width_m + 0.5 * r * horizon.increment_rad  # the bin's own width too
+    u0 = camera.column(xc, yc + half)  # (y_c to the left: smaller columns)
+    u1 = camera.column(xc, yc - half)
+    inside = (u1 > 0) & (u0 < camera.width)
+    return np.column_stack([xc, u0, u1])[inside]
+
+
+def occlude(
+    views: Sequence[View],
+    min_visible_fraction: float,
+    min_side_px: int = 8,
+    covers: np.ndarray | None = None,
+    margin_m: float = 0.3,
+) -> None:
     """Cut from each rectangle the columns that nearer candidates' rectangles cover, in place.
 
     Beyond the thesis: it compares each candidate's whole rectangle, so a person behind a nearer
@@ -245,21 +301,30 @@ def occlude(views: Sequence[View], min_visible_fraction: float, min_side_px: int
     ``min_side_px``, it is ``occluded`` and not judged (no evidence either way). Rectangles are
     person-sized, so a nearer candidate that is not a person (a post) hides too much: the cost
     is a verification missed, never a wrong one.
+
+    ``covers`` (:func:`horizon_covers`): more column spans with their depths, e.g. what the
+    laser saw; each hides the candidates more than ``margin_m`` behind it.
     """
     ok = sorted((v for v in views if v.ok), key=lambda v: v.depth_m)
-    covers: list[tuple[int, int]] = []  # column spans of the nearer candidates' rectangles
+    nearer: list[tuple[float, float]] = []  # column spans of the nearer candidates' rectangles
     for v in ok:
         x0, y0, x1, y1 = v.rect
         full = x1 - x0
         free = [(x0, x1)]
-        for a, b in covers:
+        spans = list(nearer)
+        if covers is not None and len(covers):
+            front = covers[covers[:, 0] < v.depth_m - margin_m]
+            spans += [
+                (math.floor(a), math.ceil(b)) for a, b in front[:, 1:].tolist() if b > x0 and a < x1
+            ]
+        for a, b in spans:
             free = [
                 piece
                 for f0, f1 in free
                 for piece in ((f0, min(f1, a)), (max(f0, b), f1))
                 if piece[1] > piece[0]
             ]
-        covers.append((x0, x1))
+        nearer.append((x0, x1))
         f0, f1 = max(free, key=lambda f: f[1] - f[0], default=(x0, x0))
         if f1 - f0 < max(min_side_px, min_visible_fraction * full):
             v.status = "occluded"
@@ -602,15 +667,28 @@ def judge(
     threshold: float | None,
     *,
     min_visible_fraction: float | None = 0.5,
+    horizon: Horizon | None = None,
+    horizon_margin_m: float | None = None,
+    horizon_half_width_m: float = 0.2,
     **project_kw,
 ) -> Judgement:
-    """Project every candidate, cut what nearer candidates hide (:func:`occlude`; None: not),
-    let the verifier judge those in view, choose the target."""
+    """Project every candidate, cut what nearer candidates hide (:func:`occlude`; None: not)
+    and, with ``horizon`` and ``horizon_margin_m``, what the laser saw in front of them
+    (:func:`horizon_covers`), let the verifier judge those in view, choose the target."""
     views = project(
         camera, xy_m, pan_rad, model.rect_w_px, model.rect_h_px, model.depth_m, **project_kw
     )
     if min_visible_fraction is not None:
-        occlude(views, min_visible_fraction, project_kw.get("min_side_px", 8))
+        covers = None
+        if horizon is not None and horizon_margin_m is not None:
+            covers = horizon_covers(camera, horizon, pan_rad, horizon_half_width_m)
+        occlude(
+            views,
+            min_visible_fraction,
+            project_kw.get("min_side_px", 8),
+            covers,
+            horizon_margin_m if horizon_margin_m is not None else 0.3,
+        )
     frame.cache["camera"] = camera
     distances = verifier.distances(frame, views, model)
     if len(distances) != len(views):

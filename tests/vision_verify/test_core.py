@@ -24,6 +24,7 @@ from followbot.services.vision_verify.core import (
     colour_histogram,
     confident,
     edge_histogram,
+    horizon_covers,
     judge,
     occlude,
     project,
@@ -342,3 +343,84 @@ def test_judge_skips_the_candidate_behind_and_can_be_told_not_to():
     assert [w.status for w in j.views] == ["ok", "occluded"] and j.distances[1] is None
     j = judge(v, frame, CAM, model, xy, 0.0, None, min_visible_fraction=None)
     assert [w.status for w in j.views] == ["ok", "ok"] and j.distances[1] is not None
+
+
+def _horizon(returns, far_m=np.inf):
+    """A 360 x 1-degree horizon from -180 deg: ``far_m`` everywhere (inf: no return) but for
+    each (bearing_deg, range_m) of ``returns``."""
+    from followbot.schemas import Array, Horizon
+
+    r = np.full(360, far_m, dtype=np.float32)
+    for bearing, rng in returns:
+        r[int(bearing + 180)] = rng
+    return Horizon(
+        angle_min_rad=-math.pi, increment_rad=math.radians(1.0), ranges=Array.from_numpy(r)
+    )
+
+
+def test_horizon_covers_widens_each_return_in_view_by_a_body():
+    """A return 1 m ahead (bin [0, 1) deg) hides the columns of a 0.2 m half-width body at 1 m
+    (plus its bin's half width); returns behind the camera, out of the image or missing (inf)
+    hide nothing."""
+    h = _horizon([(0.0, 1.0), (180.0 - 1, 1.0), (80.0, 1.0)])
+    covers = horizon_covers(CAM, h, 0.0, 0.2)
+    assert covers.shape == (1, 3)
+    depth, u0, u1 = covers[0]
+    centre = math.radians(0.5)
+    assert depth == pytest.approx(math.cos(centre))
+    half = 0.2 + 0.5 * math.radians(1.0)
+    assert u0 == pytest.approx(CAM.column(depth, math.sin(centre) + half))
+    assert u1 == pytest.approx(CAM.column(depth, math.sin(centre) - half))
+    assert u0 < CAM.cx < u1
+    # turned 80 deg, the camera sees the third return instead
+    ((depth80, _, _),) = horizon_covers(CAM, h, math.radians(80.5), 0.2)
+    assert depth80 == pytest.approx(1.0)
+    # a pillar's face (30 neighbouring returns at 1 m, 0.52 m wide) is no leg: it hides nothing
+    pillar = _horizon([(b, 1.0) for b in range(-15, 15)], far_m=6.0)
+    assert horizon_covers(CAM, pillar, 0.0, 0.2).shape == (0, 3)
+    # two legs 0.3 m apart in front of it are
+    legs = _horizon([(b, 1.0) for b in range(-15, 15)] + [(-9, 0.6), (-8, 0.6), (8, 0.6)], 6.0)
+    assert sorted(horizon_covers(CAM, legs, 0.0, 0.2)[:, 0].round(1).tolist()) == [0.6] * 3
+
+
+def test_what_the_laser_saw_in_front_of_a_candidate_hides_it():
+    """covers: a span more than margin_m nearer hides the columns it covers (here 70 of the
+    candidate's 100: occluded at 0.5), one within the margin (the candidate's own legs) or
+    behind it does not."""
+
+    def cand():
+        return _view(0, 2.0, (100, 0, 200, 240))
+
+    v = cand()
+    occlude([v], 0.5, covers=np.array([[1.0, 80.4, 169.6]]), margin_m=0.3)
+    assert v.status == "occluded"
+    v = cand()
+    occlude([v], 0.5, covers=np.array([[1.0, 60.0, 130.0]]), margin_m=0.3)
+    assert v.ok and v.rect == (130, 0, 200, 240)  # the columns left of 130 are the passer-by's
+    for depth in (1.8, 2.5):
+        v = cand()
+        occlude([v], 0.5, covers=np.array([[depth, 80.0, 170.0]]), margin_m=0.3)
+        assert v.ok and v.rect == (100, 0, 200, 240)
+
+
+def test_judge_does_not_judge_a_target_behind_a_passer_by_the_detector_left_out():
+    """crowd_ten's own seed at 37.44 s: the target's candidate at (1.57, 0.12); a passer-by's
+    legs 1.2 m ahead, 0.1-0.35 m to the right, are no candidate (criterion 3). With the
+    horizon the target is occluded (no judgement, so no rejection); without it, judged."""
+    model = Model(
+        model_id=1, verifier="histogram", x_m=2.0, y_m=0.0, depth_m=2.0, rect_w_px=80,
+        rect_h_px=160, image_width=320, image_height=240,
+        features={"colour_hs": colour_histogram(patch((0, 0, 200))),
+                  "edge_orientation": np.full(EDGE_BINS, 1 / EDGE_BINS, np.float32)},
+    )  # fmt: skip
+    from followbot.services.vision_verify.verifiers import make_verifier
+
+    v = make_verifier("histogram")
+    frame = ImageFeatures(np.full((240, 320, 3), 90, np.uint8))
+    xy = np.array([[1.57, 0.12]])
+    legs = [(-16.0, 1.2), (-15.0, 1.2), (-5.0, 1.2), (-4.0, 1.2), (4.0, 1.55), (5.0, 1.6)]
+    h = _horizon(legs, far_m=6.0)
+    j = judge(v, frame, CAM, model, xy, 0.0, None, horizon=h, horizon_margin_m=0.3)
+    assert j.views[0].status == "occluded" and j.distances == [None]
+    j = judge(v, frame, CAM, model, xy, 0.0, None, horizon=h)  # margin None: off
+    assert j.views[0].ok and j.distances[0] is not None
