@@ -326,18 +326,22 @@ def test_only_judged_candidates_hide_others():
     assert far.ok and far.rect == (100, 0, 200, 240)
 
 
-def test_judge_skips_the_candidate_behind_and_can_be_told_not_to():
-    """Two candidates one behind the other: only the nearer one is judged by default."""
+def _histogram_on_grey():
+    """The histogram verifier, a grey image and a model of a red person learnt at 2 m."""
+    from followbot.services.vision_verify.verifiers import make_verifier
+
     model = Model(
         model_id=1, verifier="histogram", x_m=2.0, y_m=0.0, depth_m=2.0, rect_w_px=80,
         rect_h_px=160, image_width=320, image_height=240,
         features={"colour_hs": colour_histogram(patch((0, 0, 200))),
                   "edge_orientation": np.full(EDGE_BINS, 1 / EDGE_BINS, np.float32)},
     )  # fmt: skip
-    from followbot.services.vision_verify.verifiers import make_verifier
+    return make_verifier("histogram"), ImageFeatures(np.full((240, 320, 3), 90, np.uint8)), model
 
-    v = make_verifier("histogram")
-    frame = ImageFeatures(np.full((240, 320, 3), 90, np.uint8))
+
+def test_judge_skips_the_candidate_behind_and_can_be_told_not_to():
+    """Two candidates one behind the other: only the nearer one is judged by default."""
+    v, frame, model = _histogram_on_grey()
     xy = np.array([[2.0, 0.0], [3.0, 0.05]])
     j = judge(v, frame, CAM, model, xy, 0.0, None)
     assert [w.status for w in j.views] == ["ok", "occluded"] and j.distances[1] is None
@@ -407,16 +411,7 @@ def test_judge_does_not_judge_a_target_behind_a_passer_by_the_detector_left_out(
     """crowd_ten's own seed at 37.44 s: the target's candidate at (1.57, 0.12); a passer-by's
     legs 1.2 m ahead, 0.1-0.35 m to the right, are no candidate (criterion 3). With the
     horizon the target is occluded (no judgement, so no rejection); without it, judged."""
-    model = Model(
-        model_id=1, verifier="histogram", x_m=2.0, y_m=0.0, depth_m=2.0, rect_w_px=80,
-        rect_h_px=160, image_width=320, image_height=240,
-        features={"colour_hs": colour_histogram(patch((0, 0, 200))),
-                  "edge_orientation": np.full(EDGE_BINS, 1 / EDGE_BINS, np.float32)},
-    )  # fmt: skip
-    from followbot.services.vision_verify.verifiers import make_verifier
-
-    v = make_verifier("histogram")
-    frame = ImageFeatures(np.full((240, 320, 3), 90, np.uint8))
+    v, frame, model = _histogram_on_grey()
     xy = np.array([[1.57, 0.12]])
     legs = [(-16.0, 1.2), (-15.0, 1.2), (-5.0, 1.2), (-4.0, 1.2), (4.0, 1.55), (5.0, 1.6)]
     h = _horizon(legs, far_m=6.0)
