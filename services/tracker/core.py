@@ -409,12 +409,12 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     session's rule)."""
     assignment: Literal["most_matches", "weighted"] = "weighted"
     """How the gated distances become an assignment. ``most_matches`` (before the fourteenth
-    session): as many track-candidate
-    pairs as the gates allow, and among those the least total distance (every gated-out pair
-    priced above any total). That can take a track's best candidate away to let another track
-    match at all: in crowd_ten (own seed, 36.48 s) the target gave its own lone leg (0.11 m
-    away) to a track 8 misses old (0.59 m, gate 0.74 m) and took a cross pair of its far leg
-    and a passer-by's (0.39 m) -- and followed the passer-by. ``weighted``: the assignment of
+    session): as many track-candidate pairs as the gates allow, and among those the least
+    total distance (every gated-out pair priced above any total). That can take a track's best
+    candidate away to let another track match at all: in crowd_ten (own seed, 36.48 s) the
+    target gave its own lone leg (0.11 m away) to a track 8 misses old (0.59 m, gate 0.74 m)
+    and took a cross pair of its far leg and a passer-by's (0.39 m) -- and followed the
+    passer-by. ``weighted``: the assignment of
     greatest total weight, a gated pair weighing (G - distance) with G the widest gate of the
     scan's tracks: a track left unmatched costs G, so a second match is made only when it
     adds less than G to the total distance (there: 0.11 + a miss against 0.39 + 0.59, G =
