@@ -66,6 +66,7 @@ __all__ = [
     "choose",
     "colour_histogram",
     "confident",
+    "covered_fraction",
     "edge_histogram",
     "horizon_covers",
     "judge",
@@ -670,25 +671,27 @@ def judge(
     horizon: Horizon | None = None,
     horizon_margin_m: float | None = None,
     horizon_half_width_m: float = 0.2,
+    abstain_fraction: float | None = None,
     **project_kw,
 ) -> Judgement:
     """Project every candidate, cut what nearer candidates hide (:func:`occlude`; None: not)
     and, with ``horizon`` and ``horizon_margin_m``, what the laser saw in front of them
-    (:func:`horizon_covers`), let the verifier judge those in view, choose the target."""
+    (:func:`horizon_covers`), let the verifier judge those in view, choose the target.
+
+    ``abstain_fraction`` (with ``horizon_margin_m``): the laser's covers are not cut; instead a
+    candidate judged above ``threshold`` whose rectangle they cover at least this much is
+    reported unjudged (``occluded``): a view with someone unreported in front of it is
+    trusted when it matches, not when it rejects."""
     views = project(
         camera, xy_m, pan_rad, model.rect_w_px, model.rect_h_px, model.depth_m, **project_kw
     )
+    covers = None
+    if horizon is not None and horizon_margin_m is not None:
+        covers = horizon_covers(camera, horizon, pan_rad, horizon_half_width_m)
+    margin = horizon_margin_m if horizon_margin_m is not None else 0.3
     if min_visible_fraction is not None:
-        covers = None
-        if horizon is not None and horizon_margin_m is not None:
-            covers = horizon_covers(camera, horizon, pan_rad, horizon_half_width_m)
-        occlude(
-            views,
-            min_visible_fraction,
-            project_kw.get("min_side_px", 8),
-            covers,
-            horizon_margin_m if horizon_margin_m is not None else 0.3,
-        )
+        cut = covers if abstain_fraction is None else None
+        occlude(views, min_visible_fraction, project_kw.get("min_side_px", 8), cut, margin)
     frame.cache["camera"] = camera
     distances = verifier.distances(frame, views, model)
     if len(distances) != len(views):
@@ -697,7 +700,30 @@ def judge(
         d if (v.ok and d is not None and math.isfinite(d)) else None
         for v, d in zip(views, distances, strict=True)
     ]
+    if abstain_fraction is not None and covers is not None and threshold is not None:
+        for i, (v, d) in enumerate(zip(views, distances, strict=True)):
+            if d is None or d <= threshold:
+                continue
+            front = covers[covers[:, 0] < v.depth_m - margin]
+            if covered_fraction(v.rect, front) >= abstain_fraction:
+                v.status, distances[i] = "occluded", None
     return Judgement(views=views, distances=distances, chosen=choose(distances, threshold))
+
+
+def covered_fraction(rect: Rect, covers: np.ndarray) -> float:
+    """The share of ``rect``'s columns that the spans ``covers[:, 1:3]`` cover (their union)."""
+    x0, _, x1, _ = rect
+    if x1 <= x0 or not len(covers):
+        return 0.0
+    spans = sorted(
+        (max(a, x0), min(b, x1)) for a, b in covers[:, 1:3].tolist() if b > x0 and a < x1
+    )
+    total, end = 0.0, float(x0)
+    for a, b in spans:
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total / (x1 - x0)
 
 
 # --------------------------------------------------------------------------- online update

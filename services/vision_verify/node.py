@@ -93,6 +93,12 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     3 -> 2, but crowd_ten seed 4 lost its target for good (tracked 0.97 -> 0.67) and RMSE <=
     0.08 m on 66 runs (68): off."""
     occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
+    occlusion_abstain_fraction: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = None
+    """With occlusion_margin_m: instead of cutting the columns those returns cover, judge the
+    whole rectangle as before, and report a candidate unjudged only when it would be rejected
+    and at least this fraction of its columns is covered: a view with someone unreported in
+    front of it is trusted when it matches, not when it rejects (the tracker then counts no
+    rejection). None: cut the columns."""
     acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
     auto_acquire: bool = False
     """Build a model, without a command, whenever there is none (one mover, still robot)."""
@@ -333,6 +339,7 @@ class VisionVerify:
                 horizon=msg.horizon,
                 horizon_margin_m=self.s.occlusion_margin_m,
                 horizon_half_width_m=self.s.occluder_half_width_m,
+                abstain_fraction=self.s.occlusion_abstain_fraction,
                 min_side_px=self.s.min_rect_side_px,
                 max_width_factor=self.s.max_rect_width_factor,
             )

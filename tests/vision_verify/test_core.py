@@ -23,6 +23,7 @@ from followbot.services.vision_verify.core import (
     choose,
     colour_histogram,
     confident,
+    covered_fraction,
     edge_histogram,
     horizon_covers,
     judge,
@@ -419,3 +420,30 @@ def test_judge_does_not_judge_a_target_behind_a_passer_by_the_detector_left_out(
     assert j.views[0].status == "occluded" and j.distances == [None]
     j = judge(v, frame, CAM, model, xy, 0.0, None, horizon=h)  # margin None: off
     assert j.views[0].ok and j.distances[0] is not None
+
+
+def test_covered_fraction_counts_each_column_once():
+    rect = (100, 0, 200, 240)
+    assert covered_fraction(rect, np.empty((0, 3))) == 0.0
+    spans = np.array([[1.0, 80.0, 130.0], [1.0, 120.0, 150.0], [1.0, 190.0, 400.0]])
+    assert covered_fraction(rect, spans) == pytest.approx(0.6)  # 100-150 and 190-200
+    assert covered_fraction(rect, np.array([[1.0, 0.0, 50.0]])) == 0.0
+
+
+@pytest.mark.parametrize("distance_limit", [2.5, 1.0])
+def test_abstaining_keeps_matches_and_drops_rejections_behind_a_passer_by(distance_limit):
+    """abstain_fraction: the target behind a passer-by the detector left out is judged on its
+    whole rectangle; a match stands (threshold 2.5), a rejection (threshold 1.0) is reported
+    unjudged instead."""
+    v, frame, model = _histogram_on_grey()
+    xy = np.array([[1.57, 0.12]])
+    legs = [(-16.0, 1.2), (-15.0, 1.2), (-5.0, 1.2), (-4.0, 1.2), (4.0, 1.55), (5.0, 1.6)]
+    h = _horizon(legs, far_m=6.0)
+    kw = {"horizon": h, "horizon_margin_m": 0.3, "abstain_fraction": 0.25}
+    j = judge(v, frame, CAM, model, xy, 0.0, distance_limit, **kw)
+    whole = judge(v, frame, CAM, model, xy, 0.0, None)  # the same rectangle, judged
+    assert whole.distances[0] is not None and 1.0 < whole.distances[0] <= 2.5
+    if distance_limit == 2.5:
+        assert j.views[0].ok and j.distances == whole.distances and j.chosen == 0
+    else:
+        assert j.views[0].status == "occluded" and j.distances == [None] and j.chosen == -1
