@@ -270,8 +270,8 @@ def horizon_covers(
     width = np.hypot(x[ends] - x[starts], y[ends] - y[starts])
     padded = np.concatenate(([np.inf], np.where(seen, r, np.inf), [np.inf]))
     with np.errstate(invalid="ignore"):
-        front = (padded[starts] >= r[starts] + jump_m) & (padded[ends + 2] >= r[ends] + jump_m)
-    leg_run = np.repeat((width <= max_leg_m) & front, ends - starts + 1)
+        standing = (padded[starts] >= r[starts] + jump_m) & (padded[ends + 2] >= r[ends] + jump_m)
+    leg_run = np.repeat((width <= max_leg_m) & standing, ends - starts + 1)
     keep = seen & leg_run
     r, x, y = r[keep], x[keep], y[keep]
     xc, yc = camera.to_camera(x, y, pan_rad)
