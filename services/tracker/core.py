@@ -1661,13 +1661,13 @@ class Tracker:
         (-1, 0, 0) otherwise."""
         if self.target_id >= 0 and not self._searching:
             return -1, 0.0, 0.0
+        s = self.settings
         look = self.tracks.get(self._look[0])
         lx, ly = (0.0, 0.0) if look is None else map(float, look.position)
-        gated = self.settings.look_while_lost and self.settings.look_gate_m is not None
+        gated = s.look_while_lost and s.look_gate_m is not None
         where = self._predicted_lost() if gated else None
         if look is None and where is not None:
-            if self.settings.look_occluder_edge and self._horizon is not None:
-                s = self.settings
+            if s.look_occluder_edge and self._horizon is not None:
                 edge = occluder_edge(
                     where, self._lost_v, self._horizon, s.occlusion_margin_m, s.occlusion_radius_m
                 )

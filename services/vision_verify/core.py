@@ -314,7 +314,7 @@ def occlude(
         free = [(x0, x1)]
         spans = list(nearer)
         if covers is not None and len(covers):
-            front = covers[covers[:, 0] < v.depth_m - margin_m]
+            front = in_front(covers, v.depth_m, margin_m)
             spans += [
                 (math.floor(a), math.ceil(b)) for a, b in front[:, 1:].tolist() if b > x0 and a < x1
             ]
@@ -685,13 +685,16 @@ def judge(
     views = project(
         camera, xy_m, pan_rad, model.rect_w_px, model.rect_h_px, model.depth_m, **project_kw
     )
-    covers = None
+    covers = margin = None
     if horizon is not None and horizon_margin_m is not None:
         covers = horizon_covers(camera, horizon, pan_rad, horizon_half_width_m)
-    margin = horizon_margin_m if horizon_margin_m is not None else 0.3
+        margin = horizon_margin_m
     if min_visible_fraction is not None:
-        cut = covers if abstain_fraction is None else None
-        occlude(views, min_visible_fraction, project_kw.get("min_side_px", 8), cut, margin)
+        min_side = project_kw.get("min_side_px", 8)
+        if covers is not None and abstain_fraction is None:  # the laser's covers cut
+            occlude(views, min_visible_fraction, min_side, covers, margin)
+        else:
+            occlude(views, min_visible_fraction, min_side)
     frame.cache["camera"] = camera
     distances = verifier.distances(frame, views, model)
     if len(distances) != len(views):
@@ -704,10 +707,15 @@ def judge(
         for i, (v, d) in enumerate(zip(views, distances, strict=True)):
             if d is None or d <= threshold:
                 continue
-            front = covers[covers[:, 0] < v.depth_m - margin]
-            if covered_fraction(v.rect, front) >= abstain_fraction:
+            if covered_fraction(v.rect, in_front(covers, v.depth_m, margin)) >= abstain_fraction:
                 v.status, distances[i] = "occluded", None
     return Judgement(views=views, distances=distances, chosen=choose(distances, threshold))
+
+
+def in_front(covers: np.ndarray, depth_m: float, margin_m: float) -> np.ndarray:
+    """The rows of ``covers`` (:func:`horizon_covers`) more than ``margin_m`` nearer than
+    ``depth_m``."""
+    return covers[covers[:, 0] < depth_m - margin_m]
 
 
 def covered_fraction(rect: Rect, covers: np.ndarray) -> float:
