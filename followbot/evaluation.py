@@ -95,6 +95,12 @@ Verification accuracy (``verification_*``)
     with e_k <= 0.5 m. ``reacquire_s_episodes`` lists them (null: never re-acquired before
     the end of the run, also counted in ``reacquire_failures``); ``reacquire_s`` is the mean
     of the re-acquired episodes (None when there were none); ``occlusions`` counts episodes.
+    Where that time goes, per episode, from the same first visible-again stamp:
+    ``reacquire_laser_s_episodes`` to the first scan with a laser candidate within
+    ``candidate_match_m`` of the target, ``reacquire_camera_s_episodes`` to the first scan
+    with the target in the camera's view (null: not before the end of the run). Re-taking the
+    target by appearance needs both; what is left after the later of the two is the tracker's
+    and vision's decision.
 
 CLEAR-MOT over all people (``mota``, ``motp_m``, ``misses``, ``false_positives``, ``id_switches``)
     Bernardin & Stiefelhagen (2008). Ground-truth objects: the truth people visible to the
@@ -135,6 +141,7 @@ import msgspec
 import numpy as np
 
 from followbot.schemas import (
+    Candidate,
     GroundTruth,
     People,
     PersonCandidates,
@@ -272,11 +279,7 @@ def _candidate_detection(records: list[ScanRecord], s: EvaluationSettings) -> di
         tgt = _target_truth(rec.truth)
         if tgt is None or not tgt.visible_laser or rec.candidates is None:
             continue
-        best, best_d = None, s.candidate_match_m
-        for c in rec.candidates.candidates:
-            d = math.hypot(c.x_m - tgt.robot_x_m, c.y_m - tgt.robot_y_m)
-            if d <= best_d:
-                best, best_d = c, d
+        best = _candidate_on(rec.candidates, tgt, s.candidate_match_m)
         if best is None:
             counts["undetected"] += 1
         else:
@@ -289,6 +292,24 @@ def _candidate_detection(records: list[ScanRecord], s: EvaluationSettings) -> di
         "candidates_undetected_share": _share(counts["undetected"], n),
         "candidates_no_legs_share": _share(counts["no_legs"], n),
     }
+
+
+def _first_after(records: list[ScanRecord], flags: list[bool], k: int) -> float | None:
+    """Seconds from scan ``k`` to the first scan from ``k`` on whose flag is set (None: none)."""
+    j = next((j for j in range(k, len(records)) if flags[j]), None)
+    return None if j is None else (records[j].stamp_ns - records[k].stamp_ns) / _NS
+
+
+def _candidate_on(
+    cands: PersonCandidates | None, tgt: PersonTruth, within_m: float
+) -> Candidate | None:
+    """The candidate nearest the person, if one lies within ``within_m`` of them."""
+    best, best_d = None, within_m
+    for c in cands.candidates if cands is not None else ():
+        d = math.hypot(c.x_m - tgt.robot_x_m, c.y_m - tgt.robot_y_m)
+        if d <= best_d:
+            best, best_d = c, d
+    return best
 
 
 def _target_candidate(ver: Verification, tgt: PersonTruth, max_m: float) -> int:
@@ -381,13 +402,16 @@ def _tracking(records: list[ScanRecord], dt_s: np.ndarray, s: EvaluationSettings
 
 
 def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str, Any]:
-    vis, ok = [], []
+    vis, ok, cand, cam = [], [], [], []
     for rec in records:
         tgt = _target_truth(rec.truth)
         v = tgt is not None and tgt.visible_laser
         vis.append(v)
         ok.append(v and _is_tracked(rec.target) and _error_m(rec.target, tgt) <= s.track_match_m)
+        cand.append(v and _candidate_on(rec.candidates, tgt, s.candidate_match_m) is not None)
+        cam.append(v and tgt.visible_camera)
     episodes: list[float | None] = []
+    parts: dict[str, list[float | None]] = {"laser": [], "camera": []}
     k, n = 0, len(records)
     seen = False
     while k < n:
@@ -410,16 +434,17 @@ def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str
             continue
         if (records[k].stamp_ns - records[start].stamp_ns) / _NS < s.min_occlusion_s:
             continue
-        back = next((j for j in range(k, n) if ok[j]), None)
-        episodes.append(
-            None if back is None else (records[back].stamp_ns - records[k].stamp_ns) / _NS
-        )
+        episodes.append(_first_after(records, ok, k))
+        parts["laser"].append(_first_after(records, cand, k))
+        parts["camera"].append(_first_after(records, cam, k))
     done = [e for e in episodes if e is not None]
     return {
         "occlusions": len(episodes),
         "reacquire_s": sum(done) / len(done) if done else None,
         "reacquire_s_episodes": episodes,
         "reacquire_failures": len(episodes) - len(done),
+        "reacquire_laser_s_episodes": parts["laser"],
+        "reacquire_camera_s_episodes": parts["camera"],
     }
 
 
@@ -965,7 +990,9 @@ def _definitions() -> list[str]:
         "- `follow_distance_share`: time with the true distance in [1.0, 2.0] m ÷ time tracked.",
         "- `reacquire_s`: mean time from the target reappearing to the laser after an occlusion "
         "(hidden ≥ 0.2 s; a glimpse shorter than that is part of it) to being tracked within "
-        "0.5 m again.",
+        "0.5 m again; `reacquire_laser_s_episodes` / `reacquire_camera_s_episodes`: from the "
+        "same moment to the first laser candidate on the target / the target in the camera's "
+        "view.",
         "- CLEAR-MOT (`mota`, `motp_m`, `misses`, `false_positives`, `id_switches`): truth "
         "people visible to the laser vs `tracking/people`, 0.75 m threshold, previous matches "
         "kept, the rest by the Hungarian method.",

@@ -25,7 +25,10 @@ Printed and written (``DIR/sweep.md``, ``DIR/sweep.json``):
 - two-person runs with a switch: the runs of the four two-person scenarios (thesis 5.2.4)
   with an identity switch, and their time on the bystander;
 - re-acquisitions: the occlusions of every run, how many were never re-acquired, how many
-  within 1 s, and the mean time of the re-acquired ones;
+  within 1 s, and the mean time of the re-acquired ones; then the mean wait, from the
+  target's reappearance, for a laser candidate on it and for it to be in the camera's view
+  (the evaluation's ``reacquire_laser_s_episodes`` and ``reacquire_camera_s_episodes``):
+  what is left of the re-acquisition time after the later of the two is the decision;
 - mean followed: the mean ``followed_share_acquired``.
 
 With ``--against OTHER`` (another sweep's folder) the table gets OTHER's column beside this
@@ -97,6 +100,11 @@ def aggregate(metrics: dict[str, dict]) -> dict:
     followed = [
         m["followed_share_acquired"] for m in rows if m.get("followed_share_acquired") is not None
     ]
+
+    def mean_part(key: str) -> float | None:  # over the episodes where that part came
+        part = [e for m in rows for e in (m.get(key) or []) if e is not None]
+        return round(sum(part) / len(part), 2) if part else None
+
     return {
         "runs": len(rows),
         "rmse_ok": sum(ok(m.get("rmse_m"), RMSE_TARGET_M) for m in rows),
@@ -111,6 +119,8 @@ def aggregate(metrics: dict[str, dict]) -> dict:
         "reacquire_never": len(episodes) - len(done),
         "reacquire_within_1s": sum(e <= REACQUIRE_TARGET_S for e in done),
         "reacquire_mean_s": round(sum(done) / len(done), 2) if done else None,
+        "reacquire_laser_mean_s": mean_part("reacquire_laser_s_episodes"),
+        "reacquire_camera_mean_s": mean_part("reacquire_camera_s_episodes"),
         "followed_mean": round(sum(followed) / len(followed), 3) if followed else None,
     }
 
@@ -126,6 +136,8 @@ _LABELS = (
     ("reacquire_never", "never re-acquired"),
     ("reacquire_within_1s", f"re-acquired within {REACQUIRE_TARGET_S:g} s"),
     ("reacquire_mean_s", "mean re-acquisition, s"),
+    ("reacquire_laser_mean_s", "... mean wait for a laser candidate on the target, s"),
+    ("reacquire_camera_mean_s", "... mean wait for the target in the camera's view, s"),
     ("followed_mean", "mean followed"),
 )
 _RUN_FIELDS = (

@@ -342,6 +342,30 @@ def test_a_glimpse_shorter_than_min_occlusion_is_part_of_the_occlusion():
     assert m_two["reacquire_s_episodes"] == [None]
 
 
+def test_where_a_reacquisition_goes_the_laser_and_the_camera_parts():
+    """Per episode, from the first visible-again scan: the first scan with a laser candidate
+    on the target (a candidate 0.5 m off is not on it) and the first with the target in the
+    camera's view; None when that never comes."""
+    vis = "vvv" + "...." + "vvvvvvvv"
+    trk = "yyy" + "...." + ".....yyy"
+    las = "yyy" + "...." + "x.yyyyyy"  # y: candidate on the target, x: 0.5 m off
+    cam = "yyy" + "...." + "....yyyy"
+    records = []
+    for k, (v, t, c, e) in enumerate(zip(vis, trk, las, cam, strict=True)):
+        tgt = person(TARGET, 2.0, 0.0, laser=v == "v", camera=e == "y")
+        where = {"y": [candidate(2.05, 0.0, 2)], "x": [candidate(2.5, 0.0, 2)], ".": []}[c]
+        target = track(k, 2.0, 0.0) if t == "y" else track(k, 0.0, 0.0, "lost")
+        records.append(record(k, [tgt], target=target, candidates=candidates(k, where)))
+    m = compute_metrics(run_of(records))
+    assert m["reacquire_s_episodes"] == [pytest.approx(0.5)]
+    assert m["reacquire_laser_s_episodes"] == [pytest.approx(0.2)]
+    assert m["reacquire_camera_s_episodes"] == [pytest.approx(0.4)]
+    # no candidate ever (the camera sees the target at once): None for the laser
+    m = compute_metrics(_occlusion_run(vis, trk))
+    assert m["reacquire_laser_s_episodes"] == [None]
+    assert m["reacquire_camera_s_episodes"] == [pytest.approx(0.0)]  # person(): in view
+
+
 # --------------------------------------------------------------------------- CLEAR-MOT
 
 

@@ -50,6 +50,13 @@ def test_aggregate_counts_each_target_as_the_issues_state_it():
     assert (s["occlusions"], s["reacquire_never"], s["reacquire_within_1s"]) == (4, 1, 2)
     assert s["reacquire_mean_s"] == pytest.approx((0.5 + 1.0 + 1.56) / 3, abs=0.005)
     assert s["followed_mean"] == pytest.approx((1.0 + 1.0 + 0.5) / 3, abs=0.0005)
+    # the parts of the waits, over the episodes where they came (none reported: None)
+    assert s["reacquire_laser_mean_s"] is None
+    metrics["c"]["reacquire_laser_s_episodes"] = [0.1, 0.2, None, 0.6]
+    metrics["c"]["reacquire_camera_s_episodes"] = [0.4, None, None, None]
+    s = aggregate(metrics)
+    assert s["reacquire_laser_mean_s"] == pytest.approx(0.3)
+    assert s["reacquire_camera_mean_s"] == pytest.approx(0.4)
 
 
 def test_report_against_another_sweep_lists_only_the_runs_that_differ():
