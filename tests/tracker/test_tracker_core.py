@@ -741,6 +741,58 @@ def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_matc
     assert max(looks[0.45]) >= 0  # it looks at the walker too
 
 
+@pytest.mark.parametrize("keep", [0, 2])
+def test_the_camera_stays_on_a_flickering_newcomer_with_look_keep_misses(keep):
+    """bellotto_cluttered_office, in small: past look_max_s a newcomer far from where the
+    target should be is seen only every other scan (half hidden among shelves). With
+    look_keep_misses 0 each miss sends the camera back to the point, and it swings to and fro;
+    with 2 it keeps looking at the newcomer."""
+    trk = following_at_two(
+        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_keep_misses=keep
+    )
+    target, k = _walk_then_hide(trk, 20)  # lost, past look_max_s
+    looks = []
+    for j in range(k, k + 16):
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, (1.0, -1.5)) if j % 2 else cands(j * SCAN_NS))
+        looks.append(target.look_track_id)
+    on = [i >= 0 for i in looks[3:12]]  # from its first look for look_dwell_s (1 s)
+    assert target.status == "lost"
+    if keep:
+        assert all(on), str(looks)
+    else:
+        assert any(on) and not all(on), str(looks)
+
+
+@pytest.mark.parametrize("new_first", [False, True])
+def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
+    """look_new_first: past look_max_s, while the camera dwells on where the target should be
+    between rounds of newcomers, someone new appearing is looked at at once (the dwell is for
+    looking again at the same people)."""
+    trk = following_at_two(
+        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_dwell_s=1.0,
+        look_new_first=new_first,
+    )  # fmt: skip
+    target, k = _walk_then_hide(trk, 20)
+    first = (1.0, -1.5)
+    looks = []
+    for j in range(k, k + 8):  # one newcomer: looked at, its dwell runs out, back to the point
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, first))
+    for j in range(k + 8, k + 14):
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, first))
+        looks.append(target.look_track_id)
+    assert looks[-1] == -1  # dwelling on the point
+    second = (3.0, -2.0)  # a second newcomer appears during the dwell
+    for j in range(k + 14, k + 17):
+        still_robot(trk, j * SCAN_NS)
+        target, people = trk.step(cands(j * SCAN_NS, first, second))
+    ids = {t.id: (t.x_m, t.y_m) for t in people.tracks}
+    new_id = min(ids, key=lambda i: abs(ids[i][0] - 3.0))
+    assert (target.look_track_id == new_id) == new_first
+
+
 def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_as_before():
     """look_wide_max_distance: within look_wide_gate_m of where the lost target should be
     (here about (2, 1.9)) anyone vision accepts is re-taken, as without the setting; a person
