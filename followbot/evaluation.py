@@ -100,7 +100,10 @@ Verification accuracy (``verification_*``)
     ``candidate_match_m`` of the target, ``reacquire_camera_s_episodes`` to the first scan
     with the target in the camera's view (null: not before the end of the run). Re-taking the
     target by appearance needs both; what is left after the later of the two is the tracker's
-    and vision's decision.
+    and vision's decision. ``reacquire_turn_s_episodes``: the least time a camera turning at
+    once, at ``camera_pan_rate_deg_s``, from where this one pointed at that first scan would
+    need to bring the target's centre into its ``camera_hfov_deg`` -- a bound no tracker
+    can beat by appearance whose camera was pointed there (0 when it was in view already).
 
 CLEAR-MOT over all people (``mota``, ``motp_m``, ``misses``, ``false_positives``, ``id_switches``)
     Bernardin & Stiefelhagen (2008). Ground-truth objects: the truth people visible to the
@@ -207,9 +210,16 @@ class EvaluationSettings(msgspec.Struct, frozen=True, kw_only=True):
     # A hidden run shorter than this is a dropout, not an occlusion episode (not in DESIGN.md:
     # one or two missed scans at 8-10 Hz should not count as occlusions with 0 s re-acquisition).
     min_occlusion_s: float = 0.2
+    # reacquire_turn_s_episodes: the simulator's camera (CameraSpec.hfov_deg, RobotSpec's
+    # pan_rate_deg_s; DESIGN.md: pan <= 90 deg/s)
+    camera_hfov_deg: float = 47.5
+    camera_pan_rate_deg_s: float = 90.0
 
     def __post_init__(self) -> None:
-        for name in ("candidate_match_m", "track_match_m", "mot_match_m"):
+        for name in (
+            "candidate_match_m", "track_match_m", "mot_match_m", "camera_hfov_deg",
+            "camera_pan_rate_deg_s",
+        ):  # fmt: skip
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         lo, hi = self.follow_band_m
@@ -411,7 +421,7 @@ def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str
         cand.append(v and _candidate_on(rec.candidates, tgt, s.candidate_match_m) is not None)
         cam.append(v and tgt.visible_camera)
     episodes: list[float | None] = []
-    parts: dict[str, list[float | None]] = {"laser": [], "camera": []}
+    parts: dict[str, list[float | None]] = {"laser": [], "camera": [], "turn": []}
     k, n = 0, len(records)
     seen = False
     while k < n:
@@ -437,6 +447,7 @@ def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str
         episodes.append(_first_after(records, ok, k))
         parts["laser"].append(_first_after(records, cand, k))
         parts["camera"].append(_first_after(records, cam, k))
+        parts["turn"].append(_turn_s(records[k].truth, s))
     done = [e for e in episodes if e is not None]
     return {
         "occlusions": len(episodes),
@@ -445,7 +456,21 @@ def _reacquisition(records: list[ScanRecord], s: EvaluationSettings) -> dict[str
         "reacquire_failures": len(episodes) - len(done),
         "reacquire_laser_s_episodes": parts["laser"],
         "reacquire_camera_s_episodes": parts["camera"],
+        "reacquire_turn_s_episodes": parts["turn"],
     }
+
+
+def _turn_s(truth: GroundTruth, s: EvaluationSettings) -> float | None:
+    """Least time to turn the camera from its pan in ``truth`` until the target's centre is
+    in view (module docstring, ``reacquire_turn_s_episodes``)."""
+    tgt = _target_truth(truth)
+    if tgt is None:
+        return None
+    off = math.atan2(tgt.robot_y_m, tgt.robot_x_m) - truth.camera_pan_rad
+    off = abs(math.atan2(math.sin(off), math.cos(off)))
+    return max(0.0, off - math.radians(s.camera_hfov_deg) / 2) / math.radians(
+        s.camera_pan_rate_deg_s
+    )
 
 
 def _clear_mot(records: list[ScanRecord], s: EvaluationSettings) -> dict[str, Any]:
@@ -992,7 +1017,8 @@ def _definitions() -> list[str]:
         "(hidden ≥ 0.2 s; a glimpse shorter than that is part of it) to being tracked within "
         "0.5 m again; `reacquire_laser_s_episodes` / `reacquire_camera_s_episodes`: from the "
         "same moment to the first laser candidate on the target / the target in the camera's "
-        "view.",
+        "view; `reacquire_turn_s_episodes`: the least time a camera turning at once at full "
+        "rate from where this one pointed needs to have the target in view.",
         "- CLEAR-MOT (`mota`, `motp_m`, `misses`, `false_positives`, `id_switches`): truth "
         "people visible to the laser vs `tracking/people`, 0.75 m threshold, previous matches "
         "kept, the rest by the Hungarian method.",

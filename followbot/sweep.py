@@ -28,7 +28,9 @@ Printed and written (``DIR/sweep.md``, ``DIR/sweep.json``):
   within 1 s, and the mean time of the re-acquired ones; then the mean wait, from the
   target's reappearance, for a laser candidate on it and for it to be in the camera's view
   (the evaluation's ``reacquire_laser_s_episodes`` and ``reacquire_camera_s_episodes``):
-  what is left of the re-acquisition time after the later of the two is the decision;
+  what is left of the re-acquisition time after the later of the two is the decision; and
+  the mean least time the camera needed to turn to it from where it pointed then
+  (``reacquire_turn_s_episodes``), which no re-acquisition by appearance from there can beat;
 - mean followed: the mean ``followed_share_acquired``.
 
 With ``--against OTHER`` (another sweep's folder) the table gets OTHER's column beside this
@@ -121,6 +123,7 @@ def aggregate(metrics: dict[str, dict]) -> dict:
         "reacquire_mean_s": round(sum(done) / len(done), 2) if done else None,
         "reacquire_laser_mean_s": mean_part("reacquire_laser_s_episodes"),
         "reacquire_camera_mean_s": mean_part("reacquire_camera_s_episodes"),
+        "reacquire_turn_mean_s": mean_part("reacquire_turn_s_episodes"),
         "followed_mean": round(sum(followed) / len(followed), 3) if followed else None,
     }
 
@@ -138,6 +141,7 @@ _LABELS = (
     ("reacquire_mean_s", "mean re-acquisition, s"),
     ("reacquire_laser_mean_s", "... mean wait for a laser candidate on the target, s"),
     ("reacquire_camera_mean_s", "... mean wait for the target in the camera's view, s"),
+    ("reacquire_turn_mean_s", "... mean least turn of the camera to it, s"),
     ("followed_mean", "mean followed"),
 )
 _RUN_FIELDS = (

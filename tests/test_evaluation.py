@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import msgspec
 import pytest
 
 from followbot.evaluation import (
@@ -360,10 +361,39 @@ def test_where_a_reacquisition_goes_the_laser_and_the_camera_parts():
     assert m["reacquire_s_episodes"] == [pytest.approx(0.5)]
     assert m["reacquire_laser_s_episodes"] == [pytest.approx(0.2)]
     assert m["reacquire_camera_s_episodes"] == [pytest.approx(0.4)]
+    assert m["reacquire_turn_s_episodes"] == [0.0]  # straight ahead of the camera
     # no candidate ever (the camera sees the target at once): None for the laser
     m = compute_metrics(_occlusion_run(vis, trk))
     assert m["reacquire_laser_s_episodes"] == [None]
     assert m["reacquire_camera_s_episodes"] == [pytest.approx(0.0)]  # person(): in view
+
+
+def test_the_least_camera_turn_to_a_reappearing_target():
+    """reacquire_turn_s_episodes: the target comes back at bearing 90 deg, the camera looks
+    ahead (pan 0): 90 - 47.5 / 2 deg to turn at 90 deg/s; at 180 deg/s half that; from the
+    other side (pan -170 deg) the short way round, 100 deg."""
+    vis, trk = "vvv" + "...." + "vvv", "yyy" + "...." + "..y"
+
+    def run(pan_deg: float) -> ScenarioRun:
+        records = []
+        for k, (v, t) in enumerate(zip(vis, trk, strict=True)):
+            tgt = person(TARGET, 0.0, 2.0, laser=v == "v")
+            gt = msgspec.structs.replace(truth(k, [tgt]), camera_pan_rad=math.radians(pan_deg))
+            target = track(k, 0.0, 2.0) if t == "y" else track(k, 0.0, 0.0, "lost")
+            records.append(ScanRecord(stamp_ns=k * PERIOD_NS, truth=gt, target=target))
+        return run_of(records)
+
+    m = compute_metrics(run(0.0))
+    assert m["reacquire_turn_s_episodes"] == [pytest.approx((90 - 23.75) / 90)]
+    fast = EvaluationSettings(camera_pan_rate_deg_s=180.0)
+    assert compute_metrics(run(0.0), fast)["reacquire_turn_s_episodes"] == [
+        pytest.approx((90 - 23.75) / 180)
+    ]
+    m = compute_metrics(run(-170.0))
+    assert m["reacquire_turn_s_episodes"] == [pytest.approx((100 - 23.75) / 90)]
+    assert compute_metrics(run(80.0))["reacquire_turn_s_episodes"] == [0.0]
+    with pytest.raises(ValueError, match="camera_hfov_deg"):
+        EvaluationSettings(camera_hfov_deg=0.0)
 
 
 # --------------------------------------------------------------------------- CLEAR-MOT

@@ -54,7 +54,9 @@ def test_aggregate_counts_each_target_as_the_issues_state_it():
     assert s["reacquire_laser_mean_s"] is None
     metrics["c"]["reacquire_laser_s_episodes"] = [0.1, 0.2, None, 0.6]
     metrics["c"]["reacquire_camera_s_episodes"] = [0.4, None, None, None]
+    metrics["c"]["reacquire_turn_s_episodes"] = [0.0, 0.5, 0.1, 0.2]
     s = aggregate(metrics)
+    assert s["reacquire_turn_mean_s"] == pytest.approx(0.2)
     assert s["reacquire_laser_mean_s"] == pytest.approx(0.3)
     assert s["reacquire_camera_mean_s"] == pytest.approx(0.4)
 
