@@ -63,6 +63,12 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     names (TrackState.look_*) so vision can re-identify the target; the base stays still.
     Also while coasting, when the tracker names a look (occlusion_look), the base keeping its
     coasting command."""
+    follow_report: bool = False
+    """False: the rule follows the tracker's filter estimate, the report less its lone-leg
+    shift (TrackState.shift_*; zero unless the tracker's lone_leg_output_m is set), as
+    laser_legs gates criterion 3 there: refining the report then moves no part of the loop.
+    True: the reported position (moved out for lone legs), which changes the robot's path
+    (docs/tracker.md, fifteenth session: 76 runs, crowd_ten seed 6 lost its target)."""
 
 
 class Command(msgspec.Struct, frozen=True):
@@ -115,6 +121,8 @@ class FollowController:
         if status != "tracking":
             return 0.0, 0.0, self.pan, status  # lost / initialising: stop, camera stays
         x, y = target.x_m, target.y_m
+        if not s.follow_report:
+            x, y = x - target.shift_x_m, y - target.shift_y_m
         r = math.hypot(x, y)
         theta = math.atan2(y, x)
         speed = math.hypot(target.vx_mps, target.vy_mps)

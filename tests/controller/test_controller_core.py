@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import math
 
+import msgspec
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -42,6 +43,18 @@ def test_turns_only_outside_the_6_degree_dead_band_and_pan_is_the_heading():
         if turns:
             assert math.copysign(1, w) == math.copysign(1, th)
         assert pan == pytest.approx(th)
+
+
+@pytest.mark.parametrize("follow_report", [False, True])
+def test_the_rule_follows_the_filter_estimate_not_the_lone_leg_report(follow_report):
+    """The tracker reports (1.6, 0.4) = its filter estimate (1.45, 0.3) plus a lone-leg shift
+    (0.15, 0.1): by default the rule follows the filter estimate (r 1.48 m: match speed; the
+    heading 11.7 deg), with follow_report the report (r 1.65 m: full speed; 14.0 deg)."""
+    t = msgspec.structs.replace(target(1.6, 0.4, vx=0.3), shift_x_m=0.15, shift_y_m=0.1)
+    v, _, pan, reason = FollowController(ControllerSettings(follow_report=follow_report)).goal(t)
+    x, y = (1.6, 0.4) if follow_report else (1.45, 0.3)
+    assert pan == pytest.approx(math.atan2(y, x))
+    assert (v, reason) == ((0.75, "max_speed") if follow_report else (0.3, "match_speed"))
 
 
 def test_coasting_keeps_the_previous_goal_lost_stops():
