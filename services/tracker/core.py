@@ -380,6 +380,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     acceptance still counts. So near, the camera sees too little of a person to say it is
     someone else: a target 0.5 m away shows a third of its body, was judged 0.80-0.85 against
     0.8 and dropped, then lost for 8-16 s (ristic_circles). 0: every rejection counts."""
+    reject_hysteresis: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Beyond the thesis: while the target is surely the one vision last accepted (as for
+    near_guard_m), a rejection of its candidate counts only when the distance exceeds the
+    threshold by more than this: a target judged around the threshold (door_corner seed 3:
+    0.74-0.86 against 0.8, scan after scan) is not dropped on every second look. 0: off."""
     near_guard_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """... only while the target is surely the one vision last accepted: its track took a
     candidate on every scan since, and no other track came within this distance of it. A
@@ -553,6 +558,15 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     look_dwell_s). 0 (before the fifteenth session): a single missed scan sent it to the next
     person or the point, and a track that flickers (someone half hidden among the shelves)
     made the camera swing 10 deg to and fro without reaching anyone (docs/tracker.md)."""
+    look_near_walkers: bool = False
+    """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
+    at people *walking* (look_moving_mps) within look_wide_gate_m of where the lost target
+    should be, not only at that point (they are re-taken on an ordinary acceptance, as anyone
+    vision accepts there). Near the robot 1.5 m spans a wide arc: in door_corner (seed 3) the
+    target walked across in front of the robot, 0.04-0.55 m from the point but 40-100 deg
+    from it, unjudged. Walkers only, and past look_max_s someone standing is re-taken only on
+    a close match (look_wide_max_distance) wherever they are: a door frame's track near the
+    point, in view on the way, was accepted at 0.65-0.73 against 0.8. False: the point only."""
     look_new_first: bool = True
     """Beyond the thesis, with look_wide_max_distance: a newcomer not yet looked at since the
     loss ends the camera's dwell on where the target should be at once (the dwell is
@@ -1244,6 +1258,15 @@ class Tracker:
             return None  # the gate itself applies
         return where, s.look_wide_gate_m
 
+    def _standing_past_gate(self, tid: int) -> bool:
+        """look_near_walkers: past look_max_s, track ``tid`` is not walking."""
+        s = self.settings
+        return (
+            s.look_near_walkers
+            and self._last_gate() is not None
+            and not self._walking(tid, s.look_moving_mps)
+        )
+
     def _beyond_last_gate(self, tid: int) -> bool:
         last = self._last_gate()
         return last is not None and not self._inside(last, self.tracks.get(tid))
@@ -1293,8 +1316,11 @@ class Tracker:
             if last is None:
                 return self._inside(gate, t)
             # past look_max_s: someone who appeared since the loss, away from where the target
-            # should be (there the camera looks at the point itself, as without the setting)
-            return t.born_ns > self._lost_ns and not self._inside(last, t)
+            # should be (there the camera looks at the point itself, as without the setting,
+            # and with look_near_walkers at whoever walks near it)
+            if self._inside(last, t):
+                return s.look_near_walkers and self._walking(t.id, s.look_moving_mps)
+            return t.born_ns > self._lost_ns
 
         eligible = [
             t
@@ -1499,7 +1525,11 @@ class Tracker:
                 if (
                     wide is not None
                     and not chosen.distance <= wide
-                    and (self._beyond_last_gate(tid) or self._beyond_loss_gate(tid))
+                    and (
+                        self._beyond_last_gate(tid)
+                        or self._beyond_loss_gate(tid)
+                        or self._standing_past_gate(tid)
+                    )
                 ):
                     return  # far from where the target went: only a close match re-takes it
             if searching:  # the hidden track's person is this one: its coasting guess goes
@@ -1566,6 +1596,9 @@ class Tracker:
         ):
             self.rejections_near += 1
             return  # too near for the camera to tell (settings)
+        h = self.settings.reject_hysteresis
+        if h > 0 and seen[0].distance <= v.threshold + h and self._surely_the_target(scan.index):
+            return  # hysteresis: a target held since its last acceptance (settings)
         if self.settings.rollback:
             self._rollback(v.stamp_ns, scan, (seen[0].x_m, seen[0].y_m))
         self._rejects += 1

@@ -793,6 +793,42 @@ def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
     assert (target.look_track_id == new_id) == new_first
 
 
+@pytest.mark.parametrize("near_walkers", [False, True])
+def test_look_near_walkers_looks_at_a_walker_near_the_point_and_a_stander_needs_a_close_match(
+    near_walkers,
+):
+    """look_near_walkers: past look_max_s the camera looks at someone walking within
+    look_wide_gate_m of where the lost target should be (about (2, 2.3)) but at another
+    bearing, not only at the point; someone standing there (a door frame's track) is re-taken
+    only on a close match."""
+    trk = following_at_two(
+        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45,
+        look_near_walkers=near_walkers, laser_reacquire_m=0.0,
+    )  # fmt: skip
+    target, k = _walk_then_hide(trk, 20)
+    looks = []
+    for j in range(k, k + 10):  # a walker ~1.2 m from the point, ~20 deg from it
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, (2.8, 1.3 + 0.06 * (j - k))))
+        looks.append(target.look_track_id)
+    assert target.status == "lost"
+    assert (max(looks[3:]) >= 0) == near_walkers
+    trk = following_at_two(
+        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45,
+        look_near_walkers=near_walkers, laser_reacquire_m=0.0,
+    )  # fmt: skip
+    target, k = _walk_then_hide(trk, 20)
+    stander = (2.2, 1.4)  # 0.5 m from the point, standing; vision accepts it at 0.6
+    for j in range(k, k + 8):
+        still_robot(trk, j * SCAN_NS)
+        if j >= k + 3:
+            trk.add_verification(
+                verification(j * SCAN_NS, [stander], chosen=0, distances=[0.6], threshold=0.8)
+            )
+        target, _ = trk.step(cands(j * SCAN_NS, stander))
+    assert (target.status == "tracking") != near_walkers
+
+
 def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_as_before():
     """look_wide_max_distance: within look_wide_gate_m of where the lost target should be
     (here about (2, 1.9)) anyone vision accepts is re-taken, as without the setting; a person
@@ -1021,6 +1057,23 @@ def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 6, others, hidden)
     assert ("lost" in statuses) == dropped
     assert (trk.rejections_near > 0) != dropped
+
+
+@pytest.mark.parametrize(
+    ("hysteresis", "distance", "others", "dropped"),
+    [(0.0, 0.85, (), True), (0.1, 0.85, (), False), (0.1, 0.95, (), True),
+     (0.1, 0.85, ((2.5, 0.6),), True)],
+)  # fmt: skip
+def test_rejections_just_above_the_threshold_keep_a_target_surely_held(
+    hysteresis, distance, others, dropped
+):
+    """reject_hysteresis: vision judges the target 0.85 against 0.8 again and again
+    (door_corner seed 3). While the track is surely the one vision last accepted, such a
+    rejection counts for nothing with a 0.1 hysteresis; 0.95 still counts, and so does 0.85
+    once someone came within near_guard_m of it."""
+    settings = TrackerSettings(reject_hysteresis=hysteresis, rollback=False)
+    _, _, statuses = rejected_every_scan(settings, (2.0, 0.0), distance, 6, others)
+    assert ("lost" in statuses) == dropped
 
 
 @pytest.mark.parametrize("split", [0.4, 0.0])
