@@ -1037,8 +1037,11 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
 @pytest.mark.parametrize(("reject_min_range_m", "dropped"), [(0.0, True), (0.7, False)])
 def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_range_m, dropped):
     """reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
-    rejections then count for nothing (off by default: every rejection counts)."""
-    settings = TrackerSettings(reject_min_range_m=reject_min_range_m, rollback=False)
+    rejections then count for nothing (0: every rejection counts; reject_hysteresis off here,
+    which would also let 0.84 pass for a target surely held)."""
+    settings = TrackerSettings(
+        reject_min_range_m=reject_min_range_m, rollback=False, reject_hysteresis=0.0
+    )
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 5)
     assert ("lost" in statuses) == dropped
     assert trk.rejections_near == (0 if dropped else 4)
