@@ -1046,7 +1046,7 @@ class Tracker:
         wide = s.look_wide_max_distance is not None
         if lost and s.look_while_lost and (s.look_gate_m is None or wide or self._look_gate()):
             self._choose_look(stamp)
-        elif self._look[0] >= 0 or self._look_rejected or self._look_done:
+        else:  # not searching: what the camera looked at during a loss is forgotten
             self._forget_looks()
         if self.target_id >= 0 and self.target_id in matched:
             sources.insert(0, "laser")
