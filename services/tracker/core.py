@@ -414,6 +414,18 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     track did not hold that candidate. A target walking at the robot at 1.5 m/s may still
     come 0.56 m nearer per scan. None: only when another track holds it (the ninth
     session's rule)."""
+    front_max_closing_mps: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    """Beyond the thesis (sixteenth session), with front_margin_m: e.g. 1.5 -- alone, too, a
+    candidate is not the target's when it lies more than front_margin_m + this x (time since
+    the target was last seen) nearer to the laser than the prediction (the robot's drive is
+    in the prediction). A fixed bound where front_approach_factor scales the target's own
+    recent walk (which blocks a standing target turning to walk at the robot): 1.0 m/s one
+    scan (0.12 s) after the target was seen allows 0.32 m, so a target walking at the robot
+    at up to ~2.2 m/s (less the estimate's lag, ~0.05 m) is still taken; a missed scan
+    doubles the time. In thesis_5_2_4_side_by_side (seed 3) a passer-by whom criterion 3 kept
+    out of the scans (no track of their own) stepped between the robot and the target, 0.325
+    m nearer than its prediction and just off its bearing (8.2 deg, occlusion_radius_m's 8.0
+    deg at 1.42 m), and the target took them for one scan. None: off."""
     assignment: Literal["most_matches", "weighted"] = "weighted"
     """How the gated distances become an assignment. ``most_matches`` (before the fourteenth
     session): as many track-candidate pairs as the gates allow, and among those the least
@@ -560,6 +572,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     look_dwell_s). 0 (before the fifteenth session): a single missed scan sent it to the next
     person or the point, and a track that flickers (someone half hidden among the shelves)
     made the camera swing 10 deg to and fro without reaching anyone (docs/tracker.md)."""
+    look_confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] | None = None
+    """Beyond the thesis, with look_while_lost: how many candidates a new track must have
+    taken before the camera turns to it (None: confirm_hits, 2). 1: from its first scan --
+    the camera then sets off one scan (0.12 s) sooner towards a target coming out from
+    behind something, and also turns to one-scan clutter (sixteenth session)."""
     look_near_walkers: bool = False
     """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
     at people *walking* (look_moving_mps) within look_wide_gate_m of where the lost target
@@ -873,10 +890,12 @@ class Tracker:
                 )
                 others = np.isfinite(np.delete(cost, r, axis=0)).any(axis=0)
                 block = (dr >= s.front_margin_m) & (db <= half) & others
+                since = max(stamp - held.last_seen_ns, 0) / _NS
                 if s.front_approach_factor is not None:  # alone: a jump its walk can't explain
                     closing = self._closing_speed(held, pred, pose)
-                    since = max(stamp - held.last_seen_ns, 0) / _NS
                     block |= dr > s.front_margin_m + s.front_approach_factor * closing * since
+                if s.front_max_closing_mps is not None:  # alone: faster than anyone walks
+                    block |= dr > s.front_margin_m + s.front_max_closing_mps * since
                 cost[r, block] = np.inf
             # a target hidden for longer than the thesis's miss budget (occlusion_max_s; no
             # other track lives that long) takes only what no other track takes: a person
@@ -1324,10 +1343,11 @@ class Tracker:
                 return s.look_near_walkers and self._walking(t.id, s.look_moving_mps)
             return t.born_ns > self._lost_ns
 
+        hits = s.confirm_hits if s.look_confirm_hits is None else s.look_confirm_hits
         eligible = [
             t
             for t in self.tracks.values()
-            if t.hits >= s.confirm_hits
+            if t.hits >= hits
             and t.misses == 0
             and self._look_rejected.get(t.id, 0) < s.look_rejections
             and float(np.hypot(*t.position)) >= s.look_min_range_m

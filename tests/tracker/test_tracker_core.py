@@ -616,6 +616,27 @@ def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
     assert target.status == "lost" and target.look_track_id == -1
 
 
+@pytest.mark.parametrize(("hits", "first_look"), [(None, 1), (1, 0), (3, 2)])
+def test_look_confirm_hits_turns_the_camera_to_a_newcomer_from_its_first_scan(hits, first_look):
+    """look_confirm_hits: while lost, the camera turns to a new track once it took this many
+    candidates (None: confirm_hits, 2 -- the first scan after it appeared; 1: at once); the
+    track is reported in tracking/people after confirm_hits either way."""
+    trk = following_at_two(look_gate_m=None, look_confirm_hits=hits)
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
+    for k in range(1, 11):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    assert target.status == "lost" and target.look_track_id == -1
+    looks, reported = [], []
+    for k in range(11, 15):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, (1.5, 1.0)))
+        looks.append(target.look_track_id)
+        reported.append(len(people.tracks))
+    assert [look >= 0 for look in looks] == [i >= first_look for i in range(4)]
+    assert reported == [0, 1, 1, 1]
+
+
 def _walk_then_hide(trk, scans_hidden):
     """The target walks left at 0.5 m/s from (2, 0), accepted by vision, then is hidden."""
     for k in range(1, 16):
@@ -1682,12 +1703,41 @@ def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(settings, be
         assert target.x_m == pytest.approx(2.0, abs=0.1)
 
 
-@pytest.mark.parametrize("factor", [None, 2.0])
-def test_a_target_walking_briskly_towards_the_robot_is_still_taken(factor):
+@pytest.mark.parametrize(("bound", "taken"), [(None, True), (1.0, False), (2.5, True)])
+def test_a_passer_by_stepping_in_front_faster_than_anyone_walks_is_not_the_target(bound, taken):
+    """front_max_closing_mps: the target stands 1.45 m ahead; a passer-by no track holds
+    (criterion 3 kept their legs out of the scans) steps between it and the robot, 0.34 m
+    nearer than the target's prediction and 4 deg to its side, hiding it (side_by_side seed
+    3). 1.0 m/s for one scan (0.12 s) allows 0.2 + 0.12 = 0.32 m: the target coasts and takes
+    its own candidate back when it shows again. Off, or at 2.5 m/s (0.5 m), the target takes
+    the passer-by."""
+    trk = Tracker(TrackerSettings(acquire="nearest", reject_votes=0, front_max_closing_mps=bound))
+    for k in range(6):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (1.45, 0.06)))
+    tid = target.track_id
+    assert target.status == "tracking" and target.x_m == pytest.approx(1.45, abs=0.05)
+    still_robot(trk, 6 * SCAN_NS)
+    target, _ = trk.step(cands(6 * SCAN_NS, (1.10, 0.16)))
+    assert (target.status == "tracking" and target.x_m < 1.3) == taken
+    if not taken:
+        assert target.status == "coasting" and target.track_id == tid
+        still_robot(trk, 7 * SCAN_NS)
+        target, _ = trk.step(cands(7 * SCAN_NS, (1.10, 0.10), (1.48, 0.05)))
+        assert target.status == "tracking" and target.track_id == tid
+        assert target.x_m == pytest.approx(1.48, abs=0.1)
+
+
+FRONT_ALONE = [{}, {"front_approach_factor": 2.0}, {"front_max_closing_mps": 1.0}]
+
+
+@pytest.mark.parametrize("settings", FRONT_ALONE)
+def test_a_target_walking_briskly_towards_the_robot_is_still_taken(settings):
     """front_margin_m: alone, a candidate in front of the target's (lagging) estimate is the
     target coming closer -- 1.5 m/s straight at the robot is taken every scan (with
-    front_approach_factor too: the walk explains the jump)."""
-    trk = Tracker(TrackerSettings(acquire="nearest", front_approach_factor=factor))
+    front_approach_factor too: the walk explains the jump; with front_max_closing_mps 1.0:
+    0.18 m per scan and the estimate's lag are within its 0.32 m)."""
+    trk = Tracker(TrackerSettings(acquire="nearest", **settings))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (3.0 - 0.18 * k, 0.0)))
@@ -1695,15 +1745,16 @@ def test_a_target_walking_briskly_towards_the_robot_is_still_taken(factor):
             assert target.status == "tracking"
 
 
-@pytest.mark.parametrize("factor", [None, 2.0])
-def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan(factor):
+@pytest.mark.parametrize("settings", FRONT_ALONE)
+def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan(settings):
     """front_margin_m: a target walking at 1.5 m/s straight at the robot, missed for one scan,
     is taken back at once although it is then 0.25 m nearer than its coasting estimate (no
     other track holds it). Blocking candidates in front of a coasting target also when no
     other track holds them (tried in the eleventh session against a passer-by taken for the
     hidden target) kept this target coasting for every scan after; front_approach_factor
-    allows for the target's own walk towards the robot."""
-    trk = Tracker(TrackerSettings(acquire="nearest", front_approach_factor=factor))
+    allows for the target's own walk towards the robot, front_max_closing_mps for the time
+    since it was seen (two scans: 0.2 + 1.0 x 0.24 = 0.44 m)."""
+    trk = Tracker(TrackerSettings(acquire="nearest", **settings))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         seen = () if k == 8 else ((3.0 - 0.18 * k, 0.0),)
