@@ -414,18 +414,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     track did not hold that candidate. A target walking at the robot at 1.5 m/s may still
     come 0.56 m nearer per scan. None: only when another track holds it (the ninth
     session's rule)."""
-    front_max_closing_mps: Annotated[float, msgspec.Meta(gt=0)] | None = None
-    """Beyond the thesis (sixteenth session), with front_margin_m: e.g. 1.5 -- alone, too, a
-    candidate is not the target's when it lies more than front_margin_m + this x (time since
-    the target was last seen) nearer to the laser than the prediction (the robot's drive is
-    in the prediction). A fixed bound where front_approach_factor scales the target's own
-    recent walk (which blocks a standing target turning to walk at the robot): 1.0 m/s one
-    scan (0.12 s) after the target was seen allows 0.32 m, so a target walking at the robot
-    at up to ~2.2 m/s (less the estimate's lag, ~0.05 m) is still taken; a missed scan
-    doubles the time. In thesis_5_2_4_side_by_side (seed 3) a passer-by whom criterion 3 kept
-    out of the scans (no track of their own) stepped between the robot and the target, 0.325
-    m nearer than its prediction and just off its bearing (8.2 deg, occlusion_radius_m's 8.0
-    deg at 1.42 m), and the target took them for one scan. None: off."""
     assignment: Literal["most_matches", "weighted"] = "weighted"
     """How the gated distances become an assignment. ``most_matches`` (before the fourteenth
     session): as many track-candidate pairs as the gates allow, and among those the least
@@ -890,12 +878,10 @@ class Tracker:
                 )
                 others = np.isfinite(np.delete(cost, r, axis=0)).any(axis=0)
                 block = (dr >= s.front_margin_m) & (db <= half) & others
-                since = max(stamp - held.last_seen_ns, 0) / _NS
                 if s.front_approach_factor is not None:  # alone: a jump its walk can't explain
                     closing = self._closing_speed(held, pred, pose)
+                    since = max(stamp - held.last_seen_ns, 0) / _NS
                     block |= dr > s.front_margin_m + s.front_approach_factor * closing * since
-                if s.front_max_closing_mps is not None:  # alone: faster than anyone walks
-                    block |= dr > s.front_margin_m + s.front_max_closing_mps * since
                 cost[r, block] = np.inf
             # a target hidden for longer than the thesis's miss budget (occlusion_max_s; no
             # other track lives that long) takes only what no other track takes: a person
