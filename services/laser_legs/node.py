@@ -39,6 +39,14 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     """Leg detector by name (entry points of followbot.detectors): thesis, arc, bellotto, ..."""
     detector_settings: dict[str, Any] = {}
     """Overrides of the detector's own settings, validated by its settings Struct."""
+    detector_settings_while_lost: dict[str, Any] | None = None
+    """Beyond the thesis: overrides, on top of detector_settings, used while the tracker
+    reports the target lost (tracking/target ``lost``, at most prediction_max_age_s before the
+    scan), e.g. ``{clip_range_m: 5.0}`` for thesis -- a target who walked on while hidden is
+    seen again beyond the thesis's 3.5 m (ristic_wall_corridor seed 2: 2 s in view of both
+    sensors at 3.6-4.6 m, never re-taken). Both detectors see every scan (so a detector that
+    keeps a history keeps all of it); the lost one's candidates are published while lost.
+    Detection costs twice as much. null: off."""
     use_target_prediction: bool = True
     """Criterion 3: gate legs on the tracked target's predicted position (thesis 4.3.2)."""
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
@@ -66,24 +74,34 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
         # checked while the settings load, so a bad detector or key fails before any network
         # is opened (exit code 2, the message naming the key)
         build_detector(self, check_only=True)
+        if self.detector_settings_while_lost is not None:
+            build_detector(self, check_only=True, while_lost=True)
 
 
-def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> LegDetector | None:
+def build_detector(
+    settings: LaserLegsSettings, *, check_only: bool = False, while_lost: bool = False
+) -> LegDetector | None:
     """The configured detector; a bad name or setting is a SettingsError (a ValueError) naming
-    it. ``check_only`` validates the detector's settings without building the detector."""
+    it. ``check_only`` validates the detector's settings without building the detector;
+    ``while_lost``: the detector of detector_settings_while_lost (on top of detector_settings)."""
     try:
         cls = REGISTRY.load(settings.detector)
     except LookupError as exc:
         raise SettingsError(f"detector: {exc}") from None
+    overrides = dict(settings.detector_settings)
+    key = "detector_settings"
+    if while_lost:
+        overrides.update(settings.detector_settings_while_lost or {})
+        key = "detector_settings_while_lost"
     try:
         if check_only:
-            msgspec.convert(dict(settings.detector_settings), cls.settings_type)
+            msgspec.convert(overrides, cls.settings_type)
             return None
-        detector = make_detector(settings.detector, settings.detector_settings)
+        detector = make_detector(settings.detector, overrides)
     except (ValueError, TypeError) as exc:
         fields = ", ".join(getattr(cls.settings_type, "__struct_fields__", ()))
         raise SettingsError(
-            f"detector_settings for {settings.detector!r}: {exc} (valid keys: {fields})"
+            f"{key} for {settings.detector!r}: {exc} (valid keys: {fields})"
         ) from None
     if settings.self_filter is not None:
         return SelfFilteredDetector(detector, settings.self_filter)
@@ -93,6 +111,10 @@ def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> 
 def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     detector = build_detector(settings)
     assert detector is not None
+    lost_detector = None
+    if settings.detector_settings_while_lost is not None:
+        lost_detector = build_detector(settings, while_lost=True)
+    follows_target = settings.use_target_prediction or lost_detector is not None
     out = node.publisher("perception/candidates")
     predictor = TargetPredictor(
         max_age_s=settings.prediction_max_age_s,
@@ -104,8 +126,9 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     bin_rad = None if settings.horizon_bin_deg is None else math.radians(settings.horizon_bin_deg)
     held: deque[tuple[LaserScan, float]] = deque()
     stamps = {"scan": -1, "target": -1, "odom": -1}
-    counts = {"waits": 0, "wait_timeouts": 0, "horizon_errors": 0}
-    target_wait = settings.lockstep_target_wait_s if settings.use_target_prediction else 0.0
+    counts = {"waits": 0, "wait_timeouts": 0, "horizon_errors": 0, "lost_scans": 0}
+    counts["lost_detector_errors"] = 0
+    target_wait = settings.lockstep_target_wait_s if follows_target else 0.0
     odom_wait = settings.lockstep_odometry_wait_s if settings.use_target_prediction else 0.0
     wait_s = max(target_wait, odom_wait)
 
@@ -159,11 +182,22 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             # rule 2: one output per scan even when the detector fails; the error is counted
             out.put(msgspec.structs.replace(empty_candidates(scan, detector.name), horizon=seen))
             raise
+        if lost_detector is not None:  # every scan, so its history is whole (settings)
+            try:
+                lost_result = lost_detector.detect(scan, prediction)
+            except Exception:  # the ordinary detector's candidates still go
+                node.log.exception("detector_settings_while_lost failed on scan %d", scan.seq)
+                counts["lost_detector_errors"] += 1
+                lost_result = None
+            if lost_result is not None and predictor.lost(scan):
+                result = lost_result
+                counts["lost_scans"] += 1
         out.put(result if seen is None else msgspec.structs.replace(result, horizon=seen))
 
     node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
-    if settings.use_target_prediction:
+    if follows_target:
         node.subscribe("tracking/target", on_target, policy="all")
+    if settings.use_target_prediction:
         node.subscribe("sensors/odom", on_odometry, policy="all")
     if wait_s > 0:
         node.every(0.005, check_held, name="held_scans")
@@ -179,6 +213,9 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             f"lockstep_wait_timeouts={counts['wait_timeouts']}",
             f"horizon_errors={counts['horizon_errors']}",
         ]
+        if lost_detector is not None:
+            node.notes.append(f"lost_scans={counts['lost_scans']}")
+            node.notes.append(f"lost_detector_errors={counts['lost_detector_errors']}")
 
     notes()
     node.every(settings.health_period_s, notes, name="notes")

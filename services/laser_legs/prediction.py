@@ -121,6 +121,15 @@ class TargetPredictor:
     def add_odometry(self, odom: Odometry) -> None:
         self.odometry.add(odom)
 
+    def lost(self, scan: LaserScan) -> bool:
+        """The newest target says ``lost`` and is recent for ``scan`` (as for predict)."""
+        t = self.target
+        return (
+            t is not None
+            and t.status == "lost"
+            and 0 <= scan.stamp_ns - t.stamp_ns <= self.max_age_ns
+        )
+
     def predict(self, scan: LaserScan) -> Prediction:
         """The target's predicted (x, y) in ``scan``'s frame, or None (then no gating)."""
         t = self.target

@@ -198,6 +198,42 @@ def test_bad_detector_settings_fail_at_load_with_the_key():
     assert s.detector_settings == {"min_points": 5}
 
 
+def far_person(stamp_ns: int):
+    """One person 3.8 m ahead (beyond the thesis's 3.5 m clip), a wall behind them."""
+    return make_scan(
+        person_legs(3.8, 0.0), [(6.0, -6.0, 6.0, 6.0)], stamp_ns=stamp_ns, fov_rad=math.radians(180)
+    )
+
+
+def test_detector_settings_while_lost_apply_only_while_the_tracker_reports_a_loss():
+    """detector_settings_while_lost {clip_range_m: 5.0}: a person 3.8 m away is found while
+    tracking/target says lost (and is recent), not while initialising, tracking or with a
+    stale loss; off, never. Both detectors see every scan; Health notes count the lost scans."""
+    h = Harness(detector_settings_while_lost={"clip_range_m": 5.0}, use_target_prediction=False)
+    off = Harness(use_target_prediction=False)
+    states = [
+        ("initialising", 0, False),
+        ("lost", 100 * MS, True),
+        ("tracking", 100 * MS, False),
+        ("lost", 900 * MS, False),  # older than prediction_max_age_s (0.5 s)
+        ("lost", 50 * MS, True),
+    ]
+    for k, (status, age, found) in enumerate(states):
+        t = (k + 1) * 1000 * MS
+        for harness in (h, off):
+            harness.put("tracking/target", target(t - age, 1.0, 0.0, status=status))
+            harness.put("sensors/scan", far_person(t))
+        assert len(h.out[-1].candidates) == found, status
+        assert off.out[-1].candidates == []
+    assert h.out[-1].candidates[0].x_m == pytest.approx(3.8, abs=0.1)
+    for timer in h.node._timers:  # the notes' timer, due now
+        timer[0] = 0
+    h.node.spin_once()
+    assert "lost_scans=2" in h.node.notes and "lost_detector_errors=0" in h.node.notes
+    with pytest.raises(SettingsError, match=r"detector_settings_while_lost.*unknown field `foo`"):
+        load_settings(LaserLegsSettings, overrides=["detector_settings_while_lost={foo: 1}"])
+
+
 # --------------------------------------------------------------------------- real processes
 
 
