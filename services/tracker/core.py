@@ -565,6 +565,13 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     taken before the camera turns to it (None: confirm_hits, 2). 1: from its first scan --
     the camera then sets off one scan (0.12 s) sooner towards a target coming out from
     behind something, and also turns to one-scan clutter (sixteenth session)."""
+    look_far_walking_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    """Beyond the thesis, with look_while_lost: a track farther than this from the laser is
+    looked at only while it walks (look_moving_mps). For laser_legs'
+    detector_settings_while_lost with a longer clip: the lost target who walked on beyond the
+    thesis's 3.5 m is looked at, the furniture that shows up beyond it is not (sixteenth
+    session: the cluttered office's camera held a shelf 3.7 m away for a 1 s dwell while the
+    target came back beside the robot). None: every track, whatever its range."""
     look_near_walkers: bool = False
     """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
     at people *walking* (look_moving_mps) within look_wide_gate_m of where the lost target
@@ -1337,6 +1344,11 @@ class Tracker:
             and t.misses == 0
             and self._look_rejected.get(t.id, 0) < s.look_rejections
             and float(np.hypot(*t.position)) >= s.look_min_range_m
+            and (
+                s.look_far_walking_m is None
+                or float(np.hypot(*t.position)) <= s.look_far_walking_m
+                or self._walking(t.id, s.look_moving_mps)
+            )
             and eligible_here(t)
         ]
         if dwelling:  # on where the target should be, between the rounds of newcomers

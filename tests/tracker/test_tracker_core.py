@@ -637,6 +637,33 @@ def test_look_confirm_hits_turns_the_camera_to_a_newcomer_from_its_first_scan(hi
     assert reported == [0, 1, 1, 1]
 
 
+@pytest.mark.parametrize("far", [None, 3.5])
+def test_look_far_walking_m_looks_beyond_it_only_at_walkers(far):
+    """look_far_walking_m: while lost, a track standing 4 m away (furniture a longer
+    while-lost clip shows) is not looked at, one walking 4 m away is; off, both are."""
+    trk = following_at_two(look_gate_m=None, look_far_walking_m=far)
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
+    for k in range(1, 11):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS))
+    assert target.status == "lost"
+    stander = (3.9, 0.9)
+    for k in range(11, 16):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, stander))
+    (stand,) = people.tracks
+    assert target.look_track_id == (-1 if far else stand.id)
+    for k in range(16, 24):  # a walker comes in from farther off, 0.6 m/s
+        still_robot(trk, k * SCAN_NS)
+        walker = (4.6 - 0.072 * (k - 16), -0.8)
+        target, people = trk.step(cands(k * SCAN_NS, stander, walker))
+    walking = next(t for t in people.tracks if t.y_m < 0)
+    if far:
+        assert target.look_track_id == walking.id
+    else:
+        assert target.look_track_id in {stand.id, walking.id}
+
+
 def _walk_then_hide(trk, scans_hidden):
     """The target walks left at 0.5 m/s from (2, 0), accepted by vision, then is hidden."""
     for k in range(1, 16):
