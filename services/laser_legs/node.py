@@ -126,8 +126,9 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     bin_rad = None if settings.horizon_bin_deg is None else math.radians(settings.horizon_bin_deg)
     held: deque[tuple[LaserScan, float]] = deque()
     stamps = {"scan": -1, "target": -1, "odom": -1}
-    counts = {"waits": 0, "wait_timeouts": 0, "horizon_errors": 0, "lost_scans": 0}
-    counts["lost_detector_errors"] = 0
+    counts = dict.fromkeys(
+        ("waits", "wait_timeouts", "horizon_errors", "lost_scans", "lost_detector_errors"), 0
+    )
     target_wait = settings.lockstep_target_wait_s if follows_target else 0.0
     odom_wait = settings.lockstep_odometry_wait_s if settings.use_target_prediction else 0.0
     wait_s = max(target_wait, odom_wait)

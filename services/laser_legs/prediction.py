@@ -121,25 +121,24 @@ class TargetPredictor:
     def add_odometry(self, odom: Odometry) -> None:
         self.odometry.add(odom)
 
+    def _recent(self, t: TrackState, scan: LaserScan) -> bool:
+        """``t`` is stamped at or before ``scan``, at most max_age_s before it."""
+        return 0 <= scan.stamp_ns - t.stamp_ns <= self.max_age_ns
+
     def lost(self, scan: LaserScan) -> bool:
         """The newest target says ``lost`` and is recent for ``scan`` (as for predict)."""
         t = self.target
-        return (
-            t is not None
-            and t.status == "lost"
-            and 0 <= scan.stamp_ns - t.stamp_ns <= self.max_age_ns
-        )
+        return t is not None and t.status == "lost" and self._recent(t, scan)
 
     def predict(self, scan: LaserScan) -> Prediction:
         """The target's predicted (x, y) in ``scan``'s frame, or None (then no gating)."""
         t = self.target
         if t is None or t.status not in self.USABLE:
             return None
-        dt_ns = scan.stamp_ns - t.stamp_ns
-        if not 0 <= dt_ns <= self.max_age_ns:
+        if not self._recent(t, scan):
             self.skipped += 1
             return None
-        dt = dt_ns * _NS
+        dt = (scan.stamp_ns - t.stamp_ns) * _NS
         # constant velocity in the base frame of the target's stamp, from the tracker's filter
         # estimate (without its lone-leg shift, TrackState.shift_*): the gate is where the
         # tracker itself looks for the target's candidates
