@@ -572,6 +572,9 @@ class GroundTruth(Message, tag="ground_truth", kw_only=True):
     camera_pan_rad: Angle = 0.0
     target_id: int = -1
     people: Annotated[list[PersonTruth], _Items] = []
+    robot_bumps: Count = 0
+    """Times the robot's body has run into the static world since the start (the simulator's
+    bumper stopped it; a run of blocked steps counts once)."""
 
 
 #: Every top-level message type, for union decoders and schema export.

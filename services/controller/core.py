@@ -23,6 +23,11 @@ Limits, applied to every command whatever produced it (dt: time since the previo
     |pan| <= 100 deg,         |pan - pan_prev| <= 90 deg/s * dt
 
 so a stop is a ramp: from v_max at 2 m/s^2 braking the base is at rest within 0.375 s.
+
+Obstacles (``avoid_obstacles``, beyond the thesis; avoid.py): before the limits, a command
+whose arc would run the base into something the last laser scan shows is turned, slowed or
+stopped (reasons ``avoid_turn`` / ``avoid_slow`` / ``avoid_stop``); with no scan known, the
+base stops (reason ``no_scan``; turning on the spot and the camera go on).
 """
 
 from __future__ import annotations
@@ -31,8 +36,11 @@ import math
 from typing import Annotated
 
 import msgspec
+import numpy as np
 
 from followbot.schemas import TrackState
+
+from .avoid import ObstacleGuard
 
 __all__ = ["Command", "ControllerSettings", "FollowController"]
 
@@ -69,6 +77,23 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     laser_legs gates criterion 3 there: refining the report then moves no part of the loop.
     True: the reported position (moved out for lone legs), which changes the robot's path
     (docs/tracker.md, fifteenth session: 76 runs, crowd_ten seed 6 lost its target)."""
+    avoid_obstacles: bool = False
+    """Beyond the thesis: turn, slow or stop a command whose arc would run the base into
+    something the laser sees (avoid.py; the node then also subscribes sensors/scan). False:
+    the thesis's rule alone, which drives straight at the target through whatever is between."""
+    body_radius_m: _Pos = 0.25
+    """The base seen from above as a disc (the simulator's robot.radius_m)."""
+    obstacle_margin_m: Annotated[float, msgspec.Meta(ge=0)] = 0.05
+    avoid_horizon_s: _Pos = 1.0
+    """How far ahead the arc is checked: this many seconds of travel plus the braking
+    distance (at decel_mps2)."""
+    avoid_turn_candidates: Annotated[int, msgspec.Meta(ge=2, le=1000)] = 21
+    avoid_min_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.05
+    avoid_ignore_target_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    """Returns within this of the target's estimate are the target's legs, not obstacles
+    (the rule stops 1.2 m short of them anyway)."""
+    laser_mount_x_m: float = 0.0
+    """The laser's position ahead of the base origin."""
 
 
 class Command(msgspec.Struct, frozen=True):
@@ -103,6 +128,20 @@ class FollowController:
         self.pan = 0.0
         self._goal = (0.0, 0.0, 0.0)
         self._goal_reason = "initialising"
+        self.guard = (
+            ObstacleGuard(
+                body_radius_m=s.body_radius_m,
+                margin_m=s.obstacle_margin_m,
+                horizon_s=s.avoid_horizon_s,
+                decel_mps2=s.decel_mps2,
+                max_turn_radps=self._w_max,
+                turn_candidates=s.avoid_turn_candidates,
+                min_speed_mps=s.avoid_min_speed_mps,
+                ignore_near_target_m=s.avoid_ignore_target_m,
+            )
+            if s.avoid_obstacles
+            else None
+        )
 
     # ------------------------------------------------------------------ the rule
 
@@ -137,12 +176,25 @@ class FollowController:
 
     # ------------------------------------------------------------------ commands
 
-    def on_target(self, target: TrackState, dt_s: float) -> Command:
+    def on_target(
+        self, target: TrackState, dt_s: float, obstacles: np.ndarray | None = None
+    ) -> Command:
+        """The command for ``target``; ``obstacles``: the last scan's returns in the base
+        frame, (N, 2) (avoid_obstacles; None: no scan known)."""
         v, w, pan, reason = self.goal(target)
         if target.status == "tracking":
             self._goal = (v, w, pan)
         elif target.status != "coasting":
             self._goal = (0.0, 0.0, self.pan)
+        if self.guard is not None and v > 0.0:
+            if obstacles is None:
+                v, reason = 0.0, "no_scan"
+            else:
+                xy = None
+                if target.status in ("tracking", "coasting"):
+                    xy = (target.x_m - target.shift_x_m, target.y_m - target.shift_y_m)
+                v, w, why = self.guard.apply(v, w, obstacles, xy)
+                reason = why or reason
         return self._limit(v, w, pan, reason, dt_s)
 
     def stop(self, dt_s: float, reason: str = "watchdog") -> Command:

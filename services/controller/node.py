@@ -16,11 +16,12 @@ from typing import Annotated
 
 import msgspec
 
-from followbot.schemas import PanCommand, TrackState, VelocityCommand
+from followbot.schemas import LaserScan, PanCommand, TrackState, VelocityCommand
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import with_node_settings
 
+from .avoid import scan_points
 from .core import Command, ControllerSettings, FollowController
 
 __all__ = ["ControllerNodeSettings", "main", "setup"]
@@ -37,6 +38,9 @@ class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_f
     nominal_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
     """dt for the first target and after gaps longer than max_dt_s."""
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+    scan_max_age_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+    """avoid_obstacles: a scan stamped more than this before the target's scan is no scan
+    (the base stops)."""
 
 
 def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
@@ -50,6 +54,7 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         "last_out": None,  # monotonic s of the last command
         "watchdog_out": False,  # was the last command the watchdog's?
         "tracker_alive": None,  # None: not known yet
+        "scans": {},  # avoid_obstacles: stamp_ns -> base-frame points, the last few
     }
 
     def publish(c: Command, stamp_ns: int) -> None:
@@ -78,11 +83,35 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
             dt = 0.0  # repeated or older stamp: answer it, change nothing
         else:
             dt = settings.nominal_dt_s
-        c = ctl.on_target(t, dt)
+        c = ctl.on_target(t, dt, obstacles_for(t.stamp_ns) if ctl.guard is not None else None)
         st["last_target"] = now
         st["last_stamp"] = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
         st["watchdog_out"] = False
         publish(c, t.stamp_ns)
+
+    def on_scan(scan: LaserScan) -> None:
+        pts = scan_points(
+            scan.ranges_m(),
+            scan.angle_min_rad,
+            scan.angle_increment_rad,
+            scan.range_min_m,
+            scan.range_max_m,
+            settings.laser_mount_x_m,
+        )
+        scans = st["scans"]
+        scans[scan.stamp_ns] = pts
+        while len(scans) > 8:
+            del scans[min(scans)]
+
+    def obstacles_for(stamp_ns: int):
+        """The scan of the target's stamp, else the newest older one not too old."""
+        scans = st["scans"]
+        if stamp_ns in scans:
+            return scans[stamp_ns]
+        older = [s for s in scans if s < stamp_ns]
+        if not older or stamp_ns - max(older) > settings.scan_max_age_s * 1e9:
+            return None
+        return scans[max(older)]
 
     def watchdog() -> None:
         now = time.monotonic()
@@ -108,6 +137,8 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
             watchdog()
 
     node.subscribe("tracking/target", on_target, policy="all")
+    if ctl.guard is not None:
+        node.subscribe("sensors/scan", on_scan, policy="all")
     node.watch_alive(settings.tracker_service, on_tracker_alive)
     node.every(settings.watchdog_period_s, watchdog, name="watchdog")
     return ctl

@@ -10,6 +10,14 @@ follows the exact arc for constant (v, w) over the step:
 
 A command older than ``cmd_timeout_s`` is replaced by (0, 0) (the base's watchdog).
 
+Bumper (``bumper``, on by default). The base is a disc of ``radius_m``: a step that would bring
+its centre nearer than that to a wall, a box or a circle of the static world (and nearer than
+it already was) is not taken -- the base stops there (v = 0; turning on the spot stays free,
+and so does any motion away) and ``bumps`` counts the contact. A real base's bumper or stalled
+motors do the same; before this the simulated robot drove through furniture (a following robot
+cut the corner of occlusion_pillar's pillar to 6 mm of its centre, and parked in the cluttered
+office's shelf). People are not obstacles here: they give way (simulation.py).
+
 Pan unit. The pan angle moves towards the commanded angle (clamped to +-100 deg) at no more
 than 90 deg/s (thesis 5.2.5).
 
@@ -35,8 +43,13 @@ import numpy as np
 from followbot.geometry import wrap_angle
 
 from .scenario import RobotSpec
+from .world import StaticWorld
 
 __all__ = ["DiffDriveRobot"]
+
+_CONTACT_HYSTERESIS_M = 0.01
+"""A contact ends once the body is this far clear of the world again (creeping up to a wall
+step by step is one contact)."""
 
 
 def _approach(value: float, goal: float, max_change: float) -> float:
@@ -46,9 +59,15 @@ def _approach(value: float, goal: float, max_change: float) -> float:
 class DiffDriveRobot:
     """State and dynamics of the base, the pan unit and the odometry integrator."""
 
-    def __init__(self, spec: RobotSpec, rng: np.random.Generator) -> None:
+    def __init__(
+        self, spec: RobotSpec, rng: np.random.Generator, world: StaticWorld | None = None
+    ) -> None:
         self.spec = spec
         self._rng = rng
+        self._world = world if spec.bumper else None
+        self.bumps = 0
+        """Contacts with the world so far (a run of blocked steps counts once)."""
+        self._in_contact = False
         self.x_m = float(spec.start[0])
         self.y_m = float(spec.start[1])
         self.yaw_rad = math.radians(spec.yaw_deg)
@@ -105,13 +124,32 @@ class DiffDriveRobot:
 
         v, w, th = self.v_mps, self.w_radps, self.yaw_rad
         if abs(w) > 1e-9:
-            self.x_m += v / w * (math.sin(th + w * dt_s) - math.sin(th))
-            self.y_m -= v / w * (math.cos(th + w * dt_s) - math.cos(th))
+            x = self.x_m + v / w * (math.sin(th + w * dt_s) - math.sin(th))
+            y = self.y_m - v / w * (math.cos(th + w * dt_s) - math.cos(th))
         else:
-            self.x_m += v * dt_s * math.cos(th)
-            self.y_m += v * dt_s * math.sin(th)
+            x = self.x_m + v * dt_s * math.cos(th)
+            y = self.y_m + v * dt_s * math.sin(th)
+        if v != 0.0 and self._blocked(x, y):
+            x, y, v = self.x_m, self.y_m, 0.0
+            self.v_mps = 0.0
+        self.x_m, self.y_m = x, y
         self.yaw_rad = wrap_angle(th + w * dt_s)
         self._integrate_odometry(v * dt_s, w * dt_s, dt_s)
+
+    def _blocked(self, x_m: float, y_m: float) -> bool:
+        """Bumper: the step to (x, y) runs the body into the world (module doc)."""
+        if self._world is None:
+            return False
+        r = self.spec.radius_m
+        after = self._world.clearance_m(x_m, y_m)
+        if after >= r or after >= self._world.clearance_m(self.x_m, self.y_m):
+            if after > r + _CONTACT_HYSTERESIS_M:
+                self._in_contact = False  # clear of it: a new contact counts anew
+            return False
+        if not self._in_contact:
+            self.bumps += 1
+            self._in_contact = True
+        return True
 
     def _integrate_odometry(self, ds: float, dth: float, dt_s: float) -> None:
         o = self.spec.odometry

@@ -202,6 +202,10 @@ class RobotSpec(_Spec):
     from the robot's centre, stepping aside as they pass (simulation.py, "Giving way").
     Scripts are written in the world frame, and a following robot can stop in their path;
     real people walk round it. null: they walk through it (as before this setting)."""
+    bumper: bool = True
+    """The base (a disc of radius_m) stops where it would run into a wall, box or circle of
+    the world, and GroundTruth counts the contacts (robot.py, "Bumper"). false: it drives
+    through them (as before this setting)."""
     pan_limit_deg: Annotated[float, msgspec.Meta(ge=0.0, le=180.0)] = 100.0
     pan_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=2000.0)] = 90.0
     cmd_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.5

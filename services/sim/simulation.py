@@ -151,7 +151,7 @@ class Simulation:
         self.world = StaticWorld.from_spec(scenario.world)
         self.people = [Person(p) for p in scenario.people]
         self.target_id = scenario.target_id
-        self.robot = DiffDriveRobot(scenario.robot, np.random.default_rng(robot_ss))
+        self.robot = DiffDriveRobot(scenario.robot, np.random.default_rng(robot_ss), self.world)
         self.laser = LaserModel(scenario.laser)
         self.camera = CameraModel(scenario.camera, self.world, np.random.default_rng(bank_ss))
         self.physics_dt_ns = physics_dt_ns
@@ -356,4 +356,5 @@ class Simulation:
             camera_pan_rad=float(wrap_angle(pan)),
             target_id=self.target_id,
             people=people,
+            robot_bumps=r.bumps,
         )

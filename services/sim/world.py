@@ -96,3 +96,20 @@ class StaticWorld:
 
     def circles_taller_than(self, height_m: float) -> np.ndarray:
         return self.circles[self.circle_height_m > height_m]
+
+    def clearance_m(self, x_m: float, y_m: float) -> float:
+        """Distance from the floor point (x, y) to the nearest wall, box face or circle's edge
+        (negative inside a circle; inf in an empty world). The robot's bumper
+        (``DiffDriveRobot``) keeps it at least the body's radius."""
+        best = math.inf
+        if len(self.segments):
+            a = self.segments[:, :2]
+            ab = self.segments[:, 2:] - a
+            ap = np.array([x_m, y_m]) - a
+            t = np.clip((ap * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-18), 0.0, 1.0)
+            d = ap - t[:, None] * ab
+            best = float(np.sqrt((d * d).sum(1).min()))
+        if len(self.circles):
+            c = self.circles
+            best = min(best, float((np.hypot(c[:, 0] - x_m, c[:, 1] - y_m) - c[:, 2]).min()))
+        return best

@@ -79,3 +79,62 @@ def test_non_finite_commands_are_refused():
         sim.command_velocity(math.nan, 0.0)
     with pytest.raises(ValueError):
         sim.command_pan(math.inf)
+
+
+def _wall_ahead(**robot):
+    """A wall across the robot's way 2 m ahead (x = 2), the robot at the origin facing it."""
+    return scenario(
+        world={"walls": [{"points": [[2.0, -3.0], [2.0, 3.0]]}]},
+        robot={"odometry": {"noise": False}, **robot},
+    )
+
+
+def test_the_bumper_stops_the_base_at_a_wall_and_counts_the_contact_once():
+    sim = Simulation(_wall_ahead())
+    _drive(sim, 0.75, 0.0, 6.0)
+    x = sim.robot.pose[0]
+    # the 0.25 m disc stops against the wall (within one 5 ms step of travel), not through it
+    assert 2.0 - 0.25 - 0.004 <= x < 2.0 - 0.25
+    assert sim.robot.v_mps == 0.0
+    assert sim.robot.bumps == 1
+    assert sim.truth().robot_bumps == 1
+    # odometry saw the base stop too (the wheels do not turn against the wall)
+    assert sim.odometry().x_m == pytest.approx(x, abs=1e-9)
+
+
+def test_against_the_wall_the_base_still_turns_and_backs_away_but_does_not_slide_into_it():
+    sim = Simulation(_wall_ahead())
+    _drive(sim, 0.75, 0.0, 6.0)
+    x0 = sim.robot.pose[0]
+    _drive(sim, 0.0, 1.0, 0.5)  # turning on the spot: free
+    assert sim.robot.pose[0] == pytest.approx(x0)
+    assert sim.robot.pose[2] != pytest.approx(0.0)
+    _drive(sim, 0.5, 0.0, 0.5)  # heading ~30 deg into the wall: still blocked
+    assert sim.robot.pose[0] == pytest.approx(x0, abs=1e-6)
+    _drive(sim, 0.0, -2.0, 2.5)  # turn round (limited to 100 deg/s) ...
+    _drive(sim, 0.5, 0.0, 1.0)  # ... and away: free, and a new contact later counts anew
+    assert sim.robot.pose[0] < x0 - 0.2
+    assert sim.robot.bumps == 1
+
+
+def test_the_bumper_knows_circles_and_boxes_and_can_be_switched_off():
+    world = {
+        "circles": [{"centre": [1.5, 0.0], "radius_m": 0.1}],
+        "boxes": [{"centre": [0.0, 1.5], "size_m": [1.0, 0.4]}],
+    }
+    sim = Simulation(scenario(world=world))
+    _drive(sim, 0.75, 0.0, 4.0)
+    assert sim.robot.pose[0] == pytest.approx(1.5 - 0.1 - 0.25, abs=0.004)
+    sim = Simulation(scenario(world=world, robot={"yaw_deg": 90.0, "odometry": {"noise": False}}))
+    _drive(sim, 0.75, 0.0, 4.0)
+    assert sim.robot.pose[1] == pytest.approx(1.5 - 0.2 - 0.25, abs=0.004)
+    off = Simulation(scenario(world=world, robot={"bumper": False, "odometry": {"noise": False}}))
+    _drive(off, 0.75, 0.0, 4.0)
+    assert off.robot.pose[0] > 2.0 and off.robot.bumps == 0
+    assert off.truth().robot_bumps == 0
+
+
+def test_a_robot_started_against_a_wall_may_drive_away():
+    sim = Simulation(_wall_ahead(start=[1.85, 0.0], yaw_deg=180.0))
+    _drive(sim, 0.5, 0.0, 1.0)
+    assert sim.robot.pose[0] < 1.5 and sim.robot.bumps == 0

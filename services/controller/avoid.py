@@ -1,0 +1,147 @@
+"""Obstacle guard: the thesis's command, turned or slowed only where it would run into something.
+
+Beyond the thesis (its robot followed in open space). The rule heads straight for the target,
+so a robot following someone round a pillar, along a wall or through a door cuts the corner:
+the simulator's bumper (services/sim/robot.py) stops it there and the target walks away.
+The guard looks along the arc the base would drive, with the last laser scan (every return
+an obstacle except those within ``ignore_near_target_m`` of the target's estimate):
+
+* The arc of the command (v, w) is followed for ``L = v H + v^2 / (2 b)`` -- what the base
+  travels in the horizon H plus its braking distance at b -- sampled every ``step_m``. Its
+  free length is how far the base gets along it before its disc (``body_radius_m`` +
+  ``margin_m``) comes nearer an obstacle than that (or, when it starts nearer, nearer than it
+  starts: sliding along a wall it already touches is free, closing in is not).
+* Free for L: the command stands, unchanged (so in open space the thesis's rule is all there
+  is).
+* Else the same speed on ``turn_candidates`` arcs from -w_max to w_max: of those free for L,
+  the one whose turn rate is nearest the command's (reason ``avoid_turn``).
+* None free: the arc that gets farthest, at the speed that stops within its free length (the
+  same curvature, so the same arc; reason ``avoid_slow``); under ``min_speed_mps`` the base
+  stops and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning
+  on the spot touches nothing).
+
+Turning on the spot and standing still are always free. The scan is in the laser frame,
+``laser_mount_x_m`` ahead of the base origin; returns outside its field of view are not known
+(the guard protects the way ahead only).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["ObstacleGuard", "scan_points"]
+
+
+def scan_points(
+    ranges: np.ndarray,
+    angle_min_rad: float,
+    angle_increment_rad: float,
+    range_min_m: float,
+    range_max_m: float,
+    mount_x_m: float = 0.0,
+) -> np.ndarray:
+    """(N, 2) base-frame points of a scan's valid returns (NaN, inf, 0 and out-of-range
+    beams are no return)."""
+    r = np.asarray(ranges, dtype=np.float64).reshape(-1)
+    a = angle_min_rad + angle_increment_rad * np.arange(r.size)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r <= range_max_m)
+    r, a = r[ok], a[ok]
+    return np.column_stack([mount_x_m + r * np.cos(a), r * np.sin(a)])
+
+
+class ObstacleGuard:
+    """The guard of the module doc for one base; :meth:`apply` is a pure function of its
+    arguments."""
+
+    def __init__(
+        self,
+        *,
+        body_radius_m: float,
+        margin_m: float,
+        horizon_s: float,
+        decel_mps2: float,
+        max_turn_radps: float,
+        turn_candidates: int,
+        min_speed_mps: float,
+        ignore_near_target_m: float,
+        step_m: float = 0.05,
+    ) -> None:
+        if turn_candidates < 2:
+            raise ValueError("turn_candidates must be >= 2")
+        self.radius = body_radius_m + margin_m
+        self.horizon = horizon_s
+        self.decel = decel_mps2
+        self.min_speed = min_speed_mps
+        self.ignore = ignore_near_target_m
+        self.step = step_m
+        self.turns = np.linspace(-max_turn_radps, max_turn_radps, turn_candidates)
+
+    def reach_m(self, v: float) -> float:
+        """L: the horizon's travel plus the braking distance at speed ``v``."""
+        return v * self.horizon + v * v / (2.0 * self.decel)
+
+    def speed_for(self, free_m: float) -> float:
+        """The speed whose reach is ``free_m``."""
+        h, b = self.horizon, self.decel
+        return max(0.0, b * (-h + math.sqrt(h * h + 2.0 * max(free_m, 0.0) / b)))
+
+    def free_lengths(self, v: float, turns: np.ndarray, points: np.ndarray, length: float):
+        """Free length (m, at most ``length``) along each arc (v, w) for w in ``turns``."""
+        k = max(1, math.ceil(length / self.step))
+        s = np.linspace(length / k, length, k)  # (K,)
+        free = np.full(turns.shape, length)
+        if points.shape[0] == 0 or v <= 0.0:
+            return free
+        kappa = turns / v  # (C,)
+        ks = kappa[:, None] * s[None, :]  # (C, K)
+        straight = np.abs(kappa) < 1e-9
+        safe = np.where(straight, 1.0, kappa)[:, None]
+        x = np.where(straight[:, None], s[None, :], np.sin(ks) / safe)
+        y = np.where(straight[:, None], 0.0, (1.0 - np.cos(ks)) / safe)
+        dx = x[:, :, None] - points[None, None, :, 0]
+        dy = y[:, :, None] - points[None, None, :, 1]
+        d = np.sqrt(dx * dx + dy * dy).min(axis=2)  # (C, K)
+        start = float(np.hypot(points[:, 0], points[:, 1]).min())
+        hit = d < min(self.radius, start - 1e-3)
+        first = np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
+        free = np.where(first < 0, length, np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0))
+        return free
+
+    def apply(
+        self,
+        v: float,
+        w: float,
+        points: np.ndarray,
+        target_xy: tuple[float, float] | None,
+    ) -> tuple[float, float, str | None]:
+        """(v, w, reason) for the command (v, w) and the scan's base-frame ``points``;
+        reason None: unchanged."""
+        if v <= 0.0 or points.shape[0] == 0:
+            return v, w, None
+        length = self.reach_m(v)
+        pts = points
+        if target_xy is not None and self.ignore > 0.0:
+            far = np.hypot(pts[:, 0] - target_xy[0], pts[:, 1] - target_xy[1]) > self.ignore
+            pts = pts[far]
+        # only what the disc can reach along any arc of this length
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= length + self.radius + self.step]
+        if pts.shape[0] == 0:
+            return v, w, None
+        if self.free_lengths(v, np.array([w]), pts, length)[0] >= length:
+            return v, w, None
+        free = self.free_lengths(v, self.turns, pts, length)
+        ok = free >= length
+        if ok.any():
+            cand = np.where(ok)[0]
+            best = cand[np.argmin(np.abs(self.turns[cand] - w))]
+            return v, float(self.turns[best]), "avoid_turn"
+        most = free.max()
+        best = np.where(free >= most - 1e-9)[0]
+        best = best[np.argmin(np.abs(self.turns[best] - w))]
+        slow = min(v, self.speed_for(float(free[best])))
+        if slow < self.min_speed:
+            return 0.0, w, "avoid_stop"
+        return slow, float(self.turns[best]) * slow / v, "avoid_slow"  # the same arc, slower

@@ -1,0 +1,132 @@
+"""Controller's obstacle guard (avoid.py): unchanged in the open, turned or stopped short of
+what the laser sees, and in closed loop with the simulator the base no longer runs into walls."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from followbot.schemas import TrackState
+from followbot.services.controller.avoid import ObstacleGuard, scan_points
+from followbot.services.controller.core import ControllerSettings, FollowController
+from followbot.services.sim.scenario import load_builtin
+from followbot.services.sim.simulation import Simulation
+
+DEG = math.pi / 180
+
+
+def guard(**kw) -> ObstacleGuard:
+    args = dict(
+        body_radius_m=0.25,
+        margin_m=0.05,
+        horizon_s=1.0,
+        decel_mps2=2.0,
+        max_turn_radps=100 * DEG,
+        turn_candidates=21,
+        min_speed_mps=0.05,
+        ignore_near_target_m=0.5,
+    )
+    return ObstacleGuard(**{**args, **kw})
+
+
+def line(x0, y0, x1, y1, n=200) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    return np.array([x0, y0]) + t * np.array([x1 - x0, y1 - y0])
+
+
+def test_scan_points_drop_no_returns_and_apply_the_mount():
+    r = np.array([1.0, np.nan, np.inf, 0.0, 0.01, 50.0, 2.0])
+    pts = scan_points(r, -math.pi / 2, math.pi / 6, 0.05, 30.0, mount_x_m=0.1)
+    assert pts.shape == (2, 2)
+    assert pts[0] == pytest.approx([0.1, -1.0])
+    assert pts[1] == pytest.approx([0.1 + 2.0 * math.cos(math.pi / 2), 2.0])
+
+
+def test_in_the_open_and_beside_a_wall_it_runs_alongside_the_command_stands():
+    g = guard()
+    assert g.apply(0.75, 0.3, np.empty((0, 2)), None) == (0.75, 0.3, None)
+    far = line(-1.0, -1.0, 4.0, -1.0)  # a wall 1 m to the right
+    assert g.apply(0.75, 0.0, far, None) == (0.75, 0.0, None)
+    # already within the margin (0.28 m) and sliding along: free; closing in: turned away
+    near = line(-1.0, -0.28, 4.0, -0.28)
+    assert g.apply(0.75, 0.0, near, None) == (0.75, 0.0, None)
+    v, w, why = g.apply(0.75, -0.3, near, None)
+    assert (v, why) == (0.75, "avoid_turn") and w >= 0.0
+
+
+def test_a_pillar_ahead_is_passed_by_the_nearest_free_turn():
+    ang = np.linspace(0.0, 2 * math.pi, 60)
+    pillar = np.column_stack([1.0 + 0.15 * np.cos(ang), 0.15 * np.sin(ang)])
+    v, w, why = guard().apply(0.75, 0.1, pillar, (3.0, 0.0))
+    assert why == "avoid_turn" and v == 0.75 and abs(w) > 0.1
+    # and the chosen arc is free: sample it
+    k = w / v
+    s = np.linspace(0.0, guard().reach_m(v), 50)
+    xy = np.column_stack([np.sin(k * s) / k, (1 - np.cos(k * s)) / k])
+    d = np.hypot(xy[:, None, 0] - pillar[None, :, 0], xy[:, None, 1] - pillar[None, :, 1])
+    assert d.min() >= 0.30 - 1e-9
+
+
+def test_a_dead_end_slows_then_stops_and_the_target_s_own_legs_are_no_obstacle():
+    g = guard()
+    box = np.vstack([line(0.7, -3, 0.7, 3), line(-1, 0.35, 0.7, 0.35), line(-1, -0.35, 0.7, -0.35)])
+    v, _w, why = g.apply(0.75, 0.0, box, None)
+    assert why in ("avoid_slow", "avoid_stop") and v < 0.75
+    # something 1 cm beyond the margin, dead ahead and all round: stop, turn as told
+    ring = 0.31 * np.column_stack([np.cos(np.linspace(-2, 2, 40)), np.sin(np.linspace(-2, 2, 40))])
+    assert g.apply(0.75, 0.2, ring, None) == (0.0, 0.2, "avoid_stop")
+    legs = np.array([[1.0, 0.1], [1.0, -0.1]])  # the target, 1 m ahead (within the reach)
+    assert g.apply(0.75, 0.0, legs, (1.0, 0.0)) == (0.75, 0.0, None)
+    assert g.apply(0.75, 0.0, legs, None)[2] is not None  # someone else there: obstacle
+
+
+def test_the_controller_stops_without_a_scan_and_leaves_the_thesis_rule_alone_when_off():
+    t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.0)
+    on = FollowController(ControllerSettings(avoid_obstacles=True))
+    c = on.on_target(t, 0.12, None)
+    assert (c.linear_mps, c.reason) == (0.0, "no_scan")
+    c = on.on_target(t, 0.12, np.empty((0, 2)))
+    assert c.linear_mps > 0.0 and c.reason == "max_speed"
+    off = FollowController()
+    assert off.guard is None and off.on_target(t, 0.12, None).reason == "max_speed"
+
+
+def _follow(avoid: bool, seconds: float = 14.0) -> tuple[int, float]:
+    """ristic_wall_corridor's target along the wall, the controller on the truth (no
+    tracker): (bumps, distance to the target at the end)."""
+    sim = Simulation(load_builtin("ristic_wall_corridor"))
+    ctl = FollowController(ControllerSettings(avoid_obstacles=avoid))
+    period = round(1e9 / sim.scenario.laser.rate_hz)
+    t = 0
+    while t < seconds * 1e9:
+        t += period
+        sim.advance_to(t)
+        scan, truth = sim.scan(), sim.truth()
+        p = next(q for q in truth.people if q.is_target)
+        st = TrackState(
+            stamp_ns=t,
+            status="tracking",
+            x_m=p.robot_x_m,
+            y_m=p.robot_y_m,
+            vx_mps=p.robot_vx_mps,
+            vy_mps=p.robot_vy_mps,
+        )
+        pts = scan_points(
+            scan.ranges_m(),
+            scan.angle_min_rad,
+            scan.angle_increment_rad,
+            scan.range_min_m,
+            scan.range_max_m,
+        )
+        c = ctl.on_target(st, period / 1e9, pts)
+        sim.command_velocity(c.linear_mps, c.angular_radps)
+    return sim.robot.bumps, math.hypot(p.robot_x_m, p.robot_y_m)
+
+
+def test_closed_loop_along_a_wall_the_guard_keeps_the_base_off_it_and_with_its_target():
+    bumps, dist = _follow(avoid=False)
+    assert bumps >= 1 and dist > 3.0  # the thesis rule alone: stuck on the wall, left behind
+    bumps, dist = _follow(avoid=True)
+    assert bumps == 0 and dist < 2.0
