@@ -562,6 +562,8 @@ def compute_metrics(run: ScenarioRun, settings: EvaluationSettings | None = None
     metrics["real_time_factor"] = run.sim_s / run.wall_s if run.wall_s > 0 else None
     metrics["timeouts"] = dict(run.timeouts)
     metrics["timeouts_total"] = int(sum(run.timeouts.values()))
+    # the simulator's bumper: contacts of the robot's body with the world over the run
+    metrics["robot_bumps"] = max((r.truth.robot_bumps for r in records), default=0)
     return metrics
 
 

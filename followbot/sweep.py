@@ -31,7 +31,9 @@ Printed and written (``DIR/sweep.md``, ``DIR/sweep.json``):
   what is left of the re-acquisition time after the later of the two is the decision; and
   the mean least time the camera needed to turn to it from where it pointed then
   (``reacquire_turn_s_episodes``), which no re-acquisition by appearance from there can beat;
-- mean followed: the mean ``followed_share_acquired``.
+- mean followed: the mean ``followed_share_acquired``;
+- bumps: the runs in which the robot ran into the world (the simulator's bumper stopped it;
+  the evaluation's ``robot_bumps``), and the contacts over all runs.
 
 With ``--against OTHER`` (another sweep's folder) the table gets OTHER's column beside this
 one and lists the runs whose figures differ. Metrics are those of followbot.evaluation.
@@ -125,6 +127,8 @@ def aggregate(metrics: dict[str, dict]) -> dict:
         "reacquire_camera_mean_s": mean_part("reacquire_camera_s_episodes"),
         "reacquire_turn_mean_s": mean_part("reacquire_turn_s_episodes"),
         "followed_mean": round(sum(followed) / len(followed), 3) if followed else None,
+        "bump_runs": sum((m.get("robot_bumps") or 0) > 0 for m in rows),
+        "bumps": sum(m.get("robot_bumps") or 0 for m in rows),
     }
 
 
@@ -143,6 +147,8 @@ _LABELS = (
     ("reacquire_camera_mean_s", "... mean wait for the target in the camera's view, s"),
     ("reacquire_turn_mean_s", "... mean least turn of the camera to it, s"),
     ("followed_mean", "mean followed"),
+    ("bump_runs", "runs in which the robot ran into the world"),
+    ("bumps", "its contacts with the world, all runs"),
 )
 _RUN_FIELDS = (
     ("rmse_m", "RMSE m", ".3f"),
@@ -150,6 +156,7 @@ _RUN_FIELDS = (
     ("followed_share_acquired", "followed", ".2f"),
     ("identity_switches", "ID sw.", "d"),
     ("wrong_target_s", "wrong s", ".2f"),
+    ("robot_bumps", "bumps", "d"),
 )
 
 
