@@ -13,12 +13,16 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   starts: sliding along a wall it already touches is free, closing in is not).
 * Free for L: the command stands, unchanged (so in open space the thesis's rule is all there
   is).
-* Else the same speed on ``turn_candidates`` arcs from -w_max to w_max: of those free for L,
-  the one whose turn rate is nearest the command's (reason ``avoid_turn``).
-* None free: the arc that gets farthest, at the speed that stops within its free length (the
-  same curvature, so the same arc; reason ``avoid_slow``); under ``min_speed_mps`` the base
-  stops and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning
-  on the spot touches nothing).
+* Else the same speed on ``turn_candidates`` arcs from -w_max to w_max: of those free for L
+  that still lead towards the target (their end at least ``min_progress`` of the command's
+  own arc's gain nearer it; when that arc gains nothing, no worse), the one whose turn rate
+  is nearest the command's (reason ``avoid_turn``). A way round that leads away is no way:
+  a robot 1.2 m from someone walking round a pillar would drive off past the pillar's other
+  side and lose them (occlusion_pillar).
+* None: the command's own arc at the speed that stops within its free length (the same
+  curvature, so the same arc; reason ``avoid_slow``); under ``min_speed_mps`` the base stops
+  and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning on
+  the spot touches nothing).
 
 Turning on the spot and standing still are always free. The scan is in the laser frame,
 ``laser_mount_x_m`` ahead of the base origin; returns outside its field of view are not known
@@ -67,6 +71,7 @@ class ObstacleGuard:
         turn_candidates: int,
         min_speed_mps: float,
         ignore_near_target_m: float,
+        min_progress: float = 0.5,
         step_m: float = 0.05,
     ) -> None:
         if turn_candidates < 2:
@@ -77,6 +82,7 @@ class ObstacleGuard:
         self.min_speed = min_speed_mps
         self.ignore = ignore_near_target_m
         self.step = step_m
+        self.min_progress = min_progress
         self.turns = np.linspace(-max_turn_radps, max_turn_radps, turn_candidates)
 
     def reach_m(self, v: float) -> float:
@@ -88,27 +94,37 @@ class ObstacleGuard:
         h, b = self.horizon, self.decel
         return max(0.0, b * (-h + math.sqrt(h * h + 2.0 * max(free_m, 0.0) / b)))
 
-    def free_lengths(self, v: float, turns: np.ndarray, points: np.ndarray, length: float):
-        """Free length (m, at most ``length``) along each arc (v, w) for w in ``turns``."""
+    def _arcs(self, v: float, turns: np.ndarray, length: float):
+        """Sample poses (C, K) x, y along each arc (v, w), and the arc lengths s (K,)."""
         k = max(1, math.ceil(length / self.step))
         s = np.linspace(length / k, length, k)  # (K,)
-        free = np.full(turns.shape, length)
-        if points.shape[0] == 0 or v <= 0.0:
-            return free
         kappa = turns / v  # (C,)
         ks = kappa[:, None] * s[None, :]  # (C, K)
         straight = np.abs(kappa) < 1e-9
         safe = np.where(straight, 1.0, kappa)[:, None]
         x = np.where(straight[:, None], s[None, :], np.sin(ks) / safe)
         y = np.where(straight[:, None], 0.0, (1.0 - np.cos(ks)) / safe)
+        return x, y, s
+
+    def free_lengths(self, v: float, turns: np.ndarray, points: np.ndarray, length: float):
+        """Free length (m, at most ``length``) along each arc (v, w) for w in ``turns``."""
+        free = np.full(turns.shape, length)
+        if points.shape[0] == 0 or v <= 0.0:
+            return free
+        x, y, s = self._arcs(v, turns, length)
         dx = x[:, :, None] - points[None, None, :, 0]
         dy = y[:, :, None] - points[None, None, :, 1]
         d = np.sqrt(dx * dx + dy * dy).min(axis=2)  # (C, K)
         start = float(np.hypot(points[:, 0], points[:, 1]).min())
         hit = d < min(self.radius, start - 1e-3)
         first = np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
-        free = np.where(first < 0, length, np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0))
-        return free
+        return np.where(first < 0, length, np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0))
+
+    def progress(self, v: float, turns: np.ndarray, length: float, target_xy) -> np.ndarray:
+        """How much nearer the target each arc's end lies than the base does now (m)."""
+        x, y, _ = self._arcs(v, turns, length)
+        tx, ty = target_xy
+        return math.hypot(tx, ty) - np.hypot(tx - x[:, -1], ty - y[:, -1])
 
     def apply(
         self,
@@ -130,18 +146,21 @@ class ObstacleGuard:
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= length + self.radius + self.step]
         if pts.shape[0] == 0:
             return v, w, None
-        if self.free_lengths(v, np.array([w]), pts, length)[0] >= length:
+        own = float(self.free_lengths(v, np.array([w]), pts, length)[0])
+        if own >= length:
             return v, w, None
         free = self.free_lengths(v, self.turns, pts, length)
         ok = free >= length
+        if target_xy is not None:  # a way round must still lead towards the target
+            p0 = float(self.progress(v, np.array([w]), length, target_xy)[0])
+            ok &= self.progress(v, self.turns, length, target_xy) >= (
+                self.min_progress * p0 if p0 > 0.0 else p0
+            )
         if ok.any():
             cand = np.where(ok)[0]
             best = cand[np.argmin(np.abs(self.turns[cand] - w))]
             return v, float(self.turns[best]), "avoid_turn"
-        most = free.max()
-        best = np.where(free >= most - 1e-9)[0]
-        best = best[np.argmin(np.abs(self.turns[best] - w))]
-        slow = min(v, self.speed_for(float(free[best])))
+        slow = min(v, self.speed_for(own))  # the rule's own arc, stopping short of it
         if slow < self.min_speed:
             return 0.0, w, "avoid_stop"
-        return slow, float(self.turns[best]) * slow / v, "avoid_slow"  # the same arc, slower
+        return slow, w * slow / v, "avoid_slow"  # the same arc, slower

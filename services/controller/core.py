@@ -89,6 +89,9 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     distance (at decel_mps2)."""
     avoid_turn_candidates: Annotated[int, msgspec.Meta(ge=2, le=1000)] = 21
     avoid_min_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.05
+    avoid_min_progress: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.5
+    """A way round must bring the base at least this share of the command's own gain nearer
+    the target (avoid.py)."""
     avoid_ignore_target_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """Returns within this of the target's estimate are the target's legs, not obstacles
     (the rule stops 1.2 m short of them anyway)."""
@@ -138,6 +141,7 @@ class FollowController:
                 turn_candidates=s.avoid_turn_candidates,
                 min_speed_mps=s.avoid_min_speed_mps,
                 ignore_near_target_m=s.avoid_ignore_target_m,
+                min_progress=s.avoid_min_progress,
             )
             if s.avoid_obstacles
             else None
