@@ -572,6 +572,13 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     thesis's 3.5 m is looked at, the furniture that shows up beyond it is not (sixteenth
     session: the cluttered office's camera held a shelf 3.7 m away for a 1 s dwell while the
     target came back beside the robot). None: every track, whatever its range."""
+    look_turn_deg_s: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    """Beyond the thesis, with look_while_lost: the camera's pan rate (90 deg/s, thesis
+    5.2.5). The look_dwell_s on a person runs from when a camera turning at this rate from
+    where it was last sent can point at them, not from when it is sent: in the cluttered
+    office (with the robot kept off the shelf) the camera, sent 178 deg round to the target
+    coming back past the robot, was sent on to someone else after 1 s, still 60 deg short of
+    her (seventeenth session). None: from when it is sent."""
     look_near_walkers: bool = False
     """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
     at people *walking* (look_moving_mps) within look_wide_gate_m of where the lost target
@@ -735,6 +742,7 @@ class Tracker:
         self._look_rejected: dict[int, int] = {}
         self._look_done: set[int] = set()  # looked at for look_dwell_s without a judgement
         self._looked: set[int] = set()  # looked at since the loss (look_new_first)
+        self._look_bearing: float | None = None  # look_turn_deg_s: where the camera was sent
         self._now: tuple[int, Pose | None] = (0, None)
         self.steps_without_odometry = 0
         self._rest: _Rest | None = None  # what step_rest still has to do
@@ -1378,7 +1386,19 @@ class Tracker:
             )
 
         best = min(fresh, key=rank)
-        self._look = (best.id, stamp if best.id != tid else since)
+        start = since
+        if best.id != tid:
+            start = stamp
+            if s.look_turn_deg_s is not None and self._look_bearing is not None:
+                # the dwell runs from when the camera can be there, not from when it is sent
+                turn = abs(
+                    math.remainder(
+                        math.atan2(best.position[1], best.position[0]) - self._look_bearing,
+                        math.tau,
+                    )
+                )
+                start = stamp + round(math.degrees(turn) / s.look_turn_deg_s * _NS)
+        self._look = (best.id, start)
         self._looked.add(best.id)
 
     def _note_break(self) -> None:
@@ -1742,6 +1762,10 @@ class Tracker:
         look at while the target is lost (or, occlusion_look, hidden past the miss budget);
         (-1, 0, 0) otherwise."""
         if self.target_id >= 0 and not self._searching:
+            followed = self.tracks.get(self.target_id)
+            if followed is not None:  # the camera follows it (pan = heading)
+                xy = followed.position
+                self._look_bearing = math.atan2(float(xy[1]), float(xy[0]))
             return -1, 0.0, 0.0
         s = self.settings
         look = self.tracks.get(self._look[0])
@@ -1756,6 +1780,8 @@ class Tracker:
                 if edge is not None:
                     where = edge  # hidden there: where it comes out of hiding
             lx, ly = map(float, where)  # nobody to look at: where the target should be
+        if (lx, ly) != (0.0, 0.0):
+            self._look_bearing = math.atan2(ly, lx)
         return -1 if look is None else look.id, lx, ly
 
     def _people_output(self, stamp: int, frame_id: str) -> People:

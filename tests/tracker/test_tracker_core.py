@@ -663,6 +663,25 @@ def test_look_far_walking_m_looks_beyond_it_only_at_walkers(far):
         assert target.look_track_id in {stand.id, walking.id}
 
 
+@pytest.mark.parametrize("rate", [None, 90.0])
+def test_look_turn_deg_s_starts_the_dwell_when_the_camera_can_be_there(rate):
+    """look_turn_deg_s: the camera, last sent to (2, 0) where the target was lost, is sent to
+    a newcomer 117 deg round; unjudged, it moves on after look_dwell_s (1 s) -- counted from
+    when the camera is sent, or (90 deg/s) from when it can have turned there, 1.3 s later."""
+    trk, target = lost_at_two(look_gate_m=None, look_dwell_s=1.0, look_turn_deg_s=rate)
+    assert target.status == "lost"
+    a, b = (-0.5, 1.0), (-1.0, -1.0)  # a nearer where the target was lost: looked at first
+    looks = []
+    for k in range(11, 45):
+        still_robot(trk, k * SCAN_NS)
+        target, people = trk.step(cands(k * SCAN_NS, a, b))
+        looks.append(target.look_track_id)
+    ids = {(round(t.x_m, 1), round(t.y_m, 1)): t.id for t in people.tracks}
+    on_a = sum(look == ids[a] for look in looks[: looks.index(ids[b])])
+    turn_s = 0.0 if rate is None else math.degrees(math.atan2(1.0, -0.5)) / rate
+    assert on_a * SCAN_NS / 1e9 == pytest.approx(1.0 + turn_s, abs=0.13)
+
+
 def _walk_then_hide(trk, scans_hidden):
     """The target walks left at 0.5 m/s from (2, 0), accepted by vision, then is hidden."""
     for k in range(1, 16):
