@@ -24,6 +24,14 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning on
   the spot touches nothing).
 
+* Someone crossing between the robot and its target is waited for, not gone round: while
+  what blocks the arc includes something on the line to the target (within half the body's
+  radius of it), the base first slows on its own arc to stop short and waits, up to
+  ``wait_s`` (reason ``avoid_wait``, the controller keeps the time); only then does it go
+  round. A passer-by clears the line within a second or two; a pillar does not. Swerving at
+  full speed round a passer-by turned the laser's view away from the target just as it was
+  hidden (thesis_5_2_4_two_people, seed 2: the target's track moved to the passer-by).
+
 Turning on the spot and standing still are always free. The scan is in the laser frame,
 ``laser_mount_x_m`` ahead of the base origin; returns outside its field of view are not known
 (the guard protects the way ahead only).
@@ -77,6 +85,7 @@ class ObstacleGuard:
         if turn_candidates < 2:
             raise ValueError("turn_candidates must be >= 2")
         self.radius = body_radius_m + margin_m
+        self.body_radius = body_radius_m
         self.horizon = horizon_s
         self.decel = decel_mps2
         self.min_speed = min_speed_mps
@@ -132,9 +141,11 @@ class ObstacleGuard:
         w: float,
         points: np.ndarray,
         target_xy: tuple[float, float] | None,
+        may_swerve: bool = True,
     ) -> tuple[float, float, str | None]:
         """(v, w, reason) for the command (v, w) and the scan's base-frame ``points``;
-        reason None: unchanged."""
+        reason None: unchanged. ``may_swerve`` False: something on the line to the target
+        is waited for (reason ``avoid_wait``) rather than gone round."""
         if v <= 0.0 or points.shape[0] == 0:
             return v, w, None
         length = self.reach_m(v)
@@ -149,6 +160,8 @@ class ObstacleGuard:
         own = float(self.free_lengths(v, np.array([w]), pts, length)[0])
         if own >= length:
             return v, w, None
+        if not may_swerve and target_xy is not None and self._between(pts, target_xy):
+            return self._slow(v, w, own, "avoid_wait")
         free = self.free_lengths(v, self.turns, pts, length)
         ok = free >= length
         if target_xy is not None:  # a way round must still lead towards the target
@@ -160,7 +173,22 @@ class ObstacleGuard:
             cand = np.where(ok)[0]
             best = cand[np.argmin(np.abs(self.turns[cand] - w))]
             return v, float(self.turns[best]), "avoid_turn"
-        slow = min(v, self.speed_for(own))  # the rule's own arc, stopping short of it
+        return self._slow(v, w, own, "avoid_slow")
+
+    def _slow(self, v: float, w: float, own: float, reason: str) -> tuple[float, float, str]:
+        """The command's own arc, at the speed that stops within its free length ``own``."""
+        slow = min(v, self.speed_for(own))
         if slow < self.min_speed:
-            return 0.0, w, "avoid_stop"
-        return slow, w * slow / v, "avoid_slow"  # the same arc, slower
+            return 0.0, w, "avoid_stop" if reason == "avoid_slow" else reason
+        return slow, w * slow / v, reason  # the same arc, slower
+
+    def _between(self, pts: np.ndarray, target_xy: tuple[float, float]) -> bool:
+        """Something lies on the line from the base to the target (within half the body's
+        radius of it, short of the target)."""
+        tx, ty = target_xy
+        r = math.hypot(tx, ty)
+        if r <= 0.0:
+            return False
+        along = (pts[:, 0] * tx + pts[:, 1] * ty) / r
+        across = np.abs(pts[:, 1] * tx - pts[:, 0] * ty) / r
+        return bool(np.any((along > 0.0) & (along < r) & (across < 0.5 * self.body_radius)))

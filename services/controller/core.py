@@ -92,6 +92,9 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     avoid_min_progress: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.5
     """A way round must bring the base at least this share of the command's own gain nearer
     the target (avoid.py)."""
+    avoid_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 1.5
+    """Something on the line to the target is waited for this long before the base goes
+    round it (avoid.py; 0: at once)."""
     avoid_ignore_target_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """Returns within this of the target's estimate are the target's legs, not obstacles
     (the rule stops 1.2 m short of them anyway)."""
@@ -131,6 +134,7 @@ class FollowController:
         self.pan = 0.0
         self._goal = (0.0, 0.0, 0.0)
         self._goal_reason = "initialising"
+        self._waited_s = 0.0  # avoid_wait_s: how long the base has waited so far
         self.guard = (
             ObstacleGuard(
                 body_radius_m=s.body_radius_m,
@@ -190,6 +194,7 @@ class FollowController:
             self._goal = (v, w, pan)
         elif target.status != "coasting":
             self._goal = (0.0, 0.0, self.pan)
+        s = self.settings
         if self.guard is not None and v > 0.0:
             if obstacles is None:
                 v, reason = 0.0, "no_scan"
@@ -197,8 +202,13 @@ class FollowController:
                 xy = None
                 if target.status in ("tracking", "coasting"):
                     xy = (target.x_m - target.shift_x_m, target.y_m - target.shift_y_m)
-                v, w, why = self.guard.apply(v, w, obstacles, xy)
+                may = self._waited_s >= s.avoid_wait_s
+                v, w, why = self.guard.apply(v, w, obstacles, xy, may_swerve=may)
                 reason = why or reason
+        if reason == "avoid_wait":
+            self._waited_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
+        elif reason != "avoid_turn":
+            self._waited_s = 0.0
         return self._limit(v, w, pan, reason, dt_s)
 
     def stop(self, dt_s: float, reason: str = "watchdog") -> Command:
