@@ -77,7 +77,7 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     laser_legs gates criterion 3 there: refining the report then moves no part of the loop.
     True: the reported position (moved out for lone legs), which changes the robot's path
     (docs/tracker.md, fifteenth session: 76 runs, crowd_ten seed 6 lost its target)."""
-    avoid_obstacles: bool = False
+    avoid_obstacles: bool = True
     """Beyond the thesis: turn, slow or stop a command whose arc would run the base into
     something the laser sees (avoid.py; the node then also subscribes sensors/scan). False:
     the thesis's rule alone, which drives straight at the target through whatever is between."""

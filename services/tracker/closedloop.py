@@ -32,6 +32,7 @@ from followbot.schemas import (
     Verification,
     VerifiedCandidate,
 )
+from followbot.services.controller.avoid import scan_points
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.laser_legs.detectors import make_detector
 from followbot.services.sim.scenario import Scenario, load_builtin
@@ -161,7 +162,17 @@ def run(
                     trk.add_verification(_oracle(cands, truth, fov))
                 if ctl is not None:
                     dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
-                    cmd = ctl.on_target(state, dt)
+                    pts = None
+                    if ctl.guard is not None:  # the controller's obstacle guard sees the scan
+                        pts = scan_points(
+                            scan.ranges_m(),
+                            scan.angle_min_rad,
+                            scan.angle_increment_rad,
+                            scan.range_min_m,
+                            scan.range_max_m,
+                            sc.laser.mount_x_m,
+                        )
+                    cmd = ctl.on_target(state, dt, pts)
                     sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
                     sim.command_pan(cmd.pan_rad)
                 if drive is not None:

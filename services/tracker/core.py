@@ -572,13 +572,14 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     thesis's 3.5 m is looked at, the furniture that shows up beyond it is not (sixteenth
     session: the cluttered office's camera held a shelf 3.7 m away for a 1 s dwell while the
     target came back beside the robot). None: every track, whatever its range."""
-    look_turn_deg_s: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    look_turn_deg_s: Annotated[float, msgspec.Meta(gt=0)] | None = 90.0
     """Beyond the thesis, with look_while_lost: the camera's pan rate (90 deg/s, thesis
     5.2.5). The look_dwell_s on a person runs from when a camera turning at this rate from
     where it was last sent can point at them, not from when it is sent: in the cluttered
     office (with the robot kept off the shelf) the camera, sent 178 deg round to the target
     coming back past the robot, was sent on to someone else after 1 s, still 60 deg short of
-    her (seventeenth session). None: from when it is sent."""
+    her (seventeenth session; default since then, docs/tracker.md). None: from when it is
+    sent."""
     look_near_walkers: bool = False
     """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
     at people *walking* (look_moving_mps) within look_wide_gate_m of where the lost target

@@ -89,7 +89,7 @@ def test_the_controller_stops_without_a_scan_and_leaves_the_thesis_rule_alone_wh
     assert (c.linear_mps, c.reason) == (0.0, "no_scan")
     c = on.on_target(t, 0.12, np.empty((0, 2)))
     assert c.linear_mps > 0.0 and c.reason == "max_speed"
-    off = FollowController()
+    off = FollowController(ControllerSettings(avoid_obstacles=False))
     assert off.guard is None and off.on_target(t, 0.12, None).reason == "max_speed"
 
 
@@ -130,3 +130,25 @@ def test_closed_loop_along_a_wall_the_guard_keeps_the_base_off_it_and_with_its_t
     assert bumps >= 1 and dist > 3.0  # the thesis rule alone: stuck on the wall, left behind
     bumps, dist = _follow(avoid=True)
     assert bumps == 0 and dist < 2.0
+
+
+def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
+    """avoid_wait_s: a passer-by 0.8 m ahead on the line to the target 2.5 m away: the base
+    slows to stop short and waits 1.5 s; if they do not clear the line, it goes round."""
+    ang = np.linspace(0.0, 2 * math.pi, 40)
+    passer = np.column_stack([0.8 + 0.12 * np.cos(ang), 0.12 * np.sin(ang)])
+    g = guard()
+    v, w, why = g.apply(0.75, 0.0, passer, (2.5, 0.0), may_swerve=False)
+    assert why == "avoid_wait" and v < 0.75 and w == 0.0
+    assert g.apply(0.75, 0.0, passer, (2.5, 0.0), may_swerve=True)[2] == "avoid_turn"
+    # beside the line (a wall to the right), no waiting: turned away at once
+    wall = line(-1.0, -0.28, 4.0, -0.28)
+    assert g.apply(0.75, -0.3, wall, (2.5, 0.0), may_swerve=False)[2] == "avoid_turn"
+    ctl = FollowController(ControllerSettings(avoid_obstacles=True, avoid_wait_s=1.5))
+    t = TrackState(stamp_ns=0, status="tracking", x_m=2.5, y_m=0.0)
+    reasons = [ctl.on_target(t, 0.12, passer).reason for _ in range(20)]
+    waited = reasons.index("avoid_turn")
+    assert set(reasons[:waited]) <= {"avoid_wait"} and 12 <= waited <= 14  # 1.5 s / 0.12 s
+    # the line clears: the rule's own command again, and the next passer-by is waited for
+    assert ctl.on_target(t, 0.12, np.empty((0, 2))).reason == "max_speed"
+    assert ctl.on_target(t, 0.12, passer).reason == "avoid_wait"

@@ -6,6 +6,7 @@ import itertools
 import math
 
 import msgspec
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -14,6 +15,7 @@ from followbot.schemas import TrackState
 from followbot.services.controller.core import ControllerSettings, FollowController
 
 DEG = math.pi / 180
+RULE = ControllerSettings(avoid_obstacles=False)  # the thesis rule alone (test_avoid.py: guard)
 
 
 def target(x, y, vx=0.0, vy=0.0, status="tracking"):
@@ -30,12 +32,12 @@ def target(x, y, vx=0.0, vy=0.0, status="tracking"):
     ],
 )
 def test_translation_rule_of_thesis_4_6(r, speed, expected, reason):
-    v, w, pan, why = FollowController().goal(target(r, 0.0, vx=speed))
+    v, w, pan, why = FollowController(RULE).goal(target(r, 0.0, vx=speed))
     assert (v, w, pan, why) == (pytest.approx(expected), 0.0, 0.0, reason)
 
 
 def test_turns_only_outside_the_6_degree_dead_band_and_pan_is_the_heading():
-    ctl = FollowController()
+    ctl = FollowController(RULE)
     for deg, turns in [(5.0, False), (-5.9, False), (6.5, True), (-30.0, True)]:
         th = deg * DEG
         _, w, pan, _ = ctl.goal(target(2.0 * math.cos(th), 2.0 * math.sin(th)))
@@ -51,14 +53,16 @@ def test_the_rule_follows_the_filter_estimate_not_the_lone_leg_report(follow_rep
     (0.15, 0.1): by default the rule follows the filter estimate (r 1.48 m: match speed; the
     heading 11.7 deg), with follow_report the report (r 1.65 m: full speed; 14.0 deg)."""
     t = msgspec.structs.replace(target(1.6, 0.4, vx=0.3), shift_x_m=0.15, shift_y_m=0.1)
-    v, _, pan, reason = FollowController(ControllerSettings(follow_report=follow_report)).goal(t)
+    v, _, pan, reason = FollowController(
+        ControllerSettings(avoid_obstacles=False, follow_report=follow_report)
+    ).goal(t)
     x, y = (1.6, 0.4) if follow_report else (1.45, 0.3)
     assert pan == pytest.approx(math.atan2(y, x))
     assert (v, reason) == ((0.75, "max_speed") if follow_report else (0.3, "match_speed"))
 
 
 def test_coasting_keeps_the_previous_goal_lost_stops():
-    ctl = FollowController()
+    ctl = FollowController(RULE)
     for _ in range(40):
         c = ctl.on_target(target(2.5, 0.5), 0.12)
     v_tracking = c.linear_mps
@@ -74,7 +78,7 @@ def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limit
     """pan_to_look: a lost target with someone to look at (TrackState.look_*) turns the camera
     there at 90 deg/s, at most 100 deg; the base never moves. Off: the camera holds."""
     for on in (True, False):
-        ctl = FollowController(ControllerSettings(pan_to_look=on))
+        ctl = FollowController(ControllerSettings(avoid_obstacles=False, pan_to_look=on))
         lost = TrackState(
             stamp_ns=0, frame_id="base_link", status="lost",
             look_track_id=4, look_x_m=-1.0, look_y_m=1.0,  # 135 deg left: beyond the limit
@@ -91,10 +95,10 @@ def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limit
         else:
             assert pans == [0.0] * 20
     nowhere = TrackState(stamp_ns=0, frame_id="base_link", status="lost")
-    assert FollowController().on_target(nowhere, 0.12).pan_rad == 0.0  # -1 at (0, 0)
+    assert FollowController(RULE).on_target(nowhere, 0.12).pan_rad == 0.0  # -1 at (0, 0)
     # nobody tracked there yet, but a point to look at (where the lost target should be)
     point = TrackState(stamp_ns=0, frame_id="base_link", status="lost", look_x_m=0.0, look_y_m=2.0)
-    c = FollowController().on_target(point, 0.12)
+    c = FollowController(RULE).on_target(point, 0.12)
     assert (c.linear_mps, c.angular_radps) == (0.0, 0.0)
     assert math.degrees(c.pan_rad) == pytest.approx(90 * 0.12)
 
@@ -103,7 +107,7 @@ def test_coasting_with_a_look_keeps_the_base_going_and_turns_the_camera_to_the_l
     """A target hidden past the miss budget (tracker setting occlusion_look) is coasting with a
     look: the base keeps the coasting command, the camera turns to the look (pan_to_look)."""
     for on in (True, False):
-        ctl = FollowController(ControllerSettings(pan_to_look=on))
+        ctl = FollowController(ControllerSettings(avoid_obstacles=False, pan_to_look=on))
         for _ in range(40):
             c = ctl.on_target(target(2.5, 0.0), 0.12)
         v_tracking = c.linear_mps
@@ -120,7 +124,7 @@ def test_coasting_with_a_look_keeps_the_base_going_and_turns_the_camera_to_the_l
 
 
 def test_the_watchdog_brakes_to_rest_within_the_deceleration_limit():
-    ctl = FollowController()
+    ctl = FollowController(RULE)
     for _ in range(40):
         ctl.on_target(target(3.0, 1.0), 0.12)
     assert ctl.v > 0.7
@@ -151,15 +155,17 @@ events = st.lists(
 @settings(max_examples=300, deadline=None)
 @given(events)
 def test_limits_always_hold(seq):
-    s = ControllerSettings()
+    s = ControllerSettings()  # the obstacle guard on, a pillar 0.8 m ahead to turn it
     ctl = FollowController(s)
+    ang = np.linspace(0.0, 2 * math.pi, 24)
+    pillar = np.column_stack([0.8 + 0.15 * np.cos(ang), 0.15 * np.sin(ang)])
     v0 = w0 = p0 = 0.0
     tol = 1e-9
     for kind, x, y, vx, vy, dt in seq:
         if kind == "watchdog":
             c = ctl.stop(dt)
         else:
-            c = ctl.on_target(target(x, y, vx, vy, status=kind), dt)
+            c = ctl.on_target(target(x, y, vx, vy, status=kind), dt, pillar)
         assert 0.0 <= c.linear_mps <= s.max_speed_mps + tol  # no reverse by default
         assert abs(c.angular_radps) <= s.max_turn_deg_s * DEG + tol
         assert abs(c.pan_rad) <= s.pan_limit_deg * DEG + tol
@@ -172,6 +178,6 @@ def test_limits_always_hold(seq):
 
 
 def test_non_finite_goal_is_refused():
-    ctl = FollowController()
+    ctl = FollowController(RULE)
     c = ctl._limit(float("nan"), 0.0, 0.0, "x", 0.1)
     assert (c.linear_mps, c.reason) == (0.0, "invalid")

@@ -7,11 +7,14 @@ import queue
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from followbot.schemas import (
+    Array,
     Candidate,
     Keys,
+    LaserScan,
     Odometry,
     PersonCandidates,
     VelocityCommand,
@@ -37,13 +40,27 @@ def test_commands_flow_and_killing_the_tracker_brings_zero_velocity(
     tracker.wait_for_output("tracker up")
     cand_pub = zenoh_session.declare_publisher(keys.topic("perception/candidates"))
     odom_pub = zenoh_session.declare_publisher(keys.topic("sensors/odom"))
+    scan_pub = zenoh_session.declare_publisher(keys.topic("sensors/scan"))
     stop = threading.Event()
+    ranges = np.full(181, 6.0, dtype=np.float32)  # a room 6 m round, for the controller's guard
 
     def source() -> None:  # a person 2.6 m ahead, 20 scans a second, a still robot
         k = 0
         while not stop.is_set():
             stamp = time.time_ns()
             odom_pub.put(encode(Odometry(stamp_ns=stamp, x_m=0.0, y_m=0.0, yaw_rad=0.0)))
+            scan_pub.put(
+                encode(
+                    LaserScan(
+                        stamp_ns=stamp,
+                        angle_min_rad=-math.pi / 2,
+                        angle_increment_rad=math.pi / 180,
+                        range_min_m=0.05,
+                        range_max_m=30.0,
+                        ranges=Array.from_numpy(ranges),
+                    )
+                )
+            )
             c = Candidate(
                 x_m=2.6, y_m=0.2, range_m=math.hypot(2.6, 0.2), bearing_rad=math.atan2(0.2, 2.6)
             )

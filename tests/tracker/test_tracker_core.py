@@ -837,7 +837,7 @@ def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
     looking again at the same people)."""
     trk = following_at_two(
         look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_dwell_s=1.0,
-        look_new_first=new_first,
+        look_new_first=new_first, look_turn_deg_s=None,  # the dwell from the look (timings)
     )  # fmt: skip
     target, k = _walk_then_hide(trk, 20)
     first = (1.0, -1.5)

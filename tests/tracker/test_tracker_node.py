@@ -7,9 +7,13 @@ import time
 
 import pytest
 
+import numpy as np
+
 from followbot.schemas import (
+    Array,
     Candidate,
     Keys,
+    LaserScan,
     Odometry,
     PanCommand,
     People,
@@ -44,6 +48,22 @@ def candidates(stamp_ns, x, y):
     return PersonCandidates(stamp_ns=stamp_ns, frame_id="base_laser", candidates=[c])
 
 
+def room_scan(stamp_ns, wall_ahead_m=6.0):
+    """A 180 deg scan of a room 6 m round (the controller's obstacle guard reads it), with a
+    wall ``wall_ahead_m`` ahead across the middle 60 deg."""
+    r = np.full(181, 6.0, dtype=np.float32)
+    r[60:121] = wall_ahead_m / np.cos(np.radians(np.arange(-30, 31)))
+    return LaserScan(
+        stamp_ns=stamp_ns,
+        frame_id="base_laser",
+        angle_min_rad=-math.pi / 2,
+        angle_increment_rad=math.pi / 180,
+        range_min_m=0.05,
+        range_max_m=30.0,
+        ranges=Array.from_numpy(r),
+    )
+
+
 @pytest.fixture
 def pipeline():
     net = FakeNetwork()
@@ -66,6 +86,7 @@ def test_one_target_people_and_command_per_candidates_message_naming_its_stamp(p
         net.put(
             KEYS.topic("sensors/odom"), encode(Odometry(stamp_ns=stamp, x_m=0, y_m=0, yaw_rad=0))
         )
+        net.put(KEYS.topic("sensors/scan"), encode(room_scan(stamp)))
         net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 2.5, 0.02 * k)))
     targets = of(net, "tracking/target", TrackState)
     assert [t.stamp_ns for t in targets] == stamps
@@ -86,6 +107,7 @@ def test_controller_brakes_to_zero_when_the_tracker_goes_away(pipeline):
         net.put(
             KEYS.topic("sensors/odom"), encode(Odometry(stamp_ns=stamp, x_m=0, y_m=0, yaw_rad=0))
         )
+        net.put(KEYS.topic("sensors/scan"), encode(room_scan(stamp)))
         net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 3.0, 0.0)))
     moving = of(net, "control/cmd_vel", VelocityCommand)[-1]
     assert moving.linear_mps > 0.5
@@ -109,6 +131,28 @@ def test_controller_brakes_to_zero_when_the_tracker_goes_away(pipeline):
         controller.spin_once()
         time.sleep(0.02)
     assert len(of(net, "control/cmd_vel", VelocityCommand)) == n  # at rest: it stops talking
+
+
+def test_the_controller_stops_without_a_scan_and_short_of_a_wall(pipeline):
+    """avoid_obstacles (default): no sensors/scan -> the base stays put (no_scan); a wall
+    0.6 m ahead between the robot and a target 3 m away -> it does not drive into it."""
+    net, _, _ = pipeline
+
+    def step(k, scan):
+        stamp = k * SCAN_NS
+        net.put(
+            KEYS.topic("sensors/odom"), encode(Odometry(stamp_ns=stamp, x_m=0, y_m=0, yaw_rad=0))
+        )
+        if scan is not None:
+            net.put(KEYS.topic("sensors/scan"), encode(scan(stamp)))
+        net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 3.0, 0.0)))
+        return of(net, "control/cmd_vel", VelocityCommand)[-1]
+
+    assert {step(k, None).reason for k in range(1, 8)} >= {"no_scan"}
+    assert step(8, None).linear_mps == 0.0
+    last = [step(k, lambda t: room_scan(t, wall_ahead_m=0.6)) for k in range(9, 40)]
+    assert all(c.linear_mps < 0.3 for c in last)  # never near full speed at the wall
+    assert last[-1].reason.startswith("avoid_")
 
 
 def test_bad_estimator_setting_is_a_settings_error():
