@@ -38,6 +38,10 @@ class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_f
     nominal_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
     """dt for the first target and after gaps longer than max_dt_s."""
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+    scan_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 0.1
+    """avoid_obstacles: a target whose scan has not arrived yet (the tracker's answer can
+    overtake the laser's own message) waits this long (wall clock) for it; then it is
+    answered with the newest older scan, and Health's notes count it."""
     scan_max_age_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
     """avoid_obstacles: a scan stamped more than this before the target's scan is no scan
     (the base stops)."""
@@ -55,6 +59,8 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         "watchdog_out": False,  # was the last command the watchdog's?
         "tracker_alive": None,  # None: not known yet
         "scans": {},  # avoid_obstacles: stamp_ns -> base-frame points, the last few
+        "pending": None,  # (target, monotonic s): waiting for the scan of its stamp
+        "scans_missed": 0,  # targets answered without the scan of their stamp
     }
 
     def publish(c: Command, stamp_ns: int) -> None:
@@ -73,6 +79,19 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         st["last_out"] = time.monotonic()
 
     def on_target(t: TrackState) -> None:
+        if ctl.guard is not None:
+            if st["pending"] is not None:  # an older one still waiting: answer it now
+                answer(st["pending"][0])
+            if t.stamp_ns not in st["scans"]:
+                # its scan (straight from the laser) is not here yet: wait for it a little, so
+                # the answer does not depend on which message won the race (lock-step runs
+                # stay reproducible); watchdog() answers with the last scan after scan_wait_s
+                st["pending"] = (t, time.monotonic())
+                return
+        answer(t)
+
+    def answer(t: TrackState) -> None:
+        st["pending"] = None
         now = time.monotonic()
         last_stamp = st["last_stamp"]
         if st["watchdog_out"] and st["last_out"] is not None:
@@ -102,6 +121,9 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         scans[scan.stamp_ns] = pts
         while len(scans) > 8:
             del scans[min(scans)]
+        pending = st["pending"]
+        if pending is not None and pending[0].stamp_ns == scan.stamp_ns:
+            answer(pending[0])
 
     def obstacles_for(stamp_ns: int):
         """The scan of the target's stamp, else the newest older one not too old."""
@@ -115,6 +137,11 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
 
     def watchdog() -> None:
         now = time.monotonic()
+        pending = st["pending"]
+        if pending is not None and now - pending[1] >= settings.scan_wait_s:
+            st["scans_missed"] += 1  # answered with the last scan before it (or none: stop)
+            node.notes = [f"targets_without_their_scan={st['scans_missed']}"]
+            answer(pending[0])
         gone = st["tracker_alive"] is False
         stale = settings.stale_after_s > 0 and (
             st["last_target"] is None or now - st["last_target"] > settings.stale_after_s

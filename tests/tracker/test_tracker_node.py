@@ -5,9 +5,8 @@ from __future__ import annotations
 import math
 import time
 
-import pytest
-
 import numpy as np
+import pytest
 
 from followbot.schemas import (
     Array,
@@ -134,9 +133,10 @@ def test_controller_brakes_to_zero_when_the_tracker_goes_away(pipeline):
 
 
 def test_the_controller_stops_without_a_scan_and_short_of_a_wall(pipeline):
-    """avoid_obstacles (default): no sensors/scan -> the base stays put (no_scan); a wall
-    0.6 m ahead between the robot and a target 3 m away -> it does not drive into it."""
-    net, _, _ = pipeline
+    """avoid_obstacles (default): no sensors/scan -> each target is answered after
+    scan_wait_s, and the base stays put (no_scan); a wall 0.6 m ahead between the robot and a
+    target 3 m away -> it does not drive into it."""
+    net, _, controller = pipeline
 
     def step(k, scan):
         stamp = k * SCAN_NS
@@ -146,13 +146,42 @@ def test_the_controller_stops_without_a_scan_and_short_of_a_wall(pipeline):
         if scan is not None:
             net.put(KEYS.topic("sensors/scan"), encode(scan(stamp)))
         net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 3.0, 0.0)))
-        return of(net, "control/cmd_vel", VelocityCommand)[-1]
+        if scan is None:  # the target waits for its scan; the watchdog gives up on it
+            deadline = time.monotonic() + 2.0
+            while time.monotonic() < deadline and not [
+                c for c in of(net, "control/cmd_vel", VelocityCommand) if c.stamp_ns == stamp
+            ]:
+                controller.spin_once()
+                time.sleep(0.01)
+        (c,) = [c for c in of(net, "control/cmd_vel", VelocityCommand) if c.stamp_ns == stamp]
+        return c
 
     assert {step(k, None).reason for k in range(1, 8)} >= {"no_scan"}
     assert step(8, None).linear_mps == 0.0
+    assert controller.health().notes == ["targets_without_their_scan=8"]
     last = [step(k, lambda t: room_scan(t, wall_ahead_m=0.6)) for k in range(9, 40)]
     assert all(c.linear_mps < 0.3 for c in last)  # never near full speed at the wall
     assert last[-1].reason.startswith("avoid_")
+
+
+def test_a_target_that_overtakes_its_scan_waits_for_it(pipeline):
+    """The tracker's answer can reach the controller before the laser's own scan of that
+    stamp: the command then waits for the scan and uses it (a wall 0.4 m ahead: no speed)."""
+    net, _, _ = pipeline
+    for k in range(1, 12):
+        stamp = k * SCAN_NS
+        net.put(
+            KEYS.topic("sensors/odom"), encode(Odometry(stamp_ns=stamp, x_m=0, y_m=0, yaw_rad=0))
+        )
+        wall = 0.4 if k == 11 else 6.0
+        if k < 11:
+            net.put(KEYS.topic("sensors/scan"), encode(room_scan(stamp, wall_ahead_m=wall)))
+        net.put(KEYS.topic("perception/candidates"), encode(candidates(stamp, 3.0, 0.0)))
+    cmds = of(net, "control/cmd_vel", VelocityCommand)
+    assert [c.stamp_ns for c in cmds] == [k * SCAN_NS for k in range(1, 11)]  # 11 waits
+    net.put(KEYS.topic("sensors/scan"), encode(room_scan(11 * SCAN_NS, wall_ahead_m=0.4)))
+    last = of(net, "control/cmd_vel", VelocityCommand)[-1]
+    assert last.stamp_ns == 11 * SCAN_NS and last.reason.startswith("avoid_")
 
 
 def test_bad_estimator_setting_is_a_settings_error():
