@@ -32,6 +32,7 @@ bench: $(STAMP)
 	$(BIN)/followbot bench $(ARGS)
 	$(BIN)/python -m followbot.services.laser_legs.bench
 	$(BIN)/python -m followbot.services.tracker.bench
+	$(BIN)/python -m followbot.services.controller.bench
 	$(BIN)/python -m followbot.services.vision_verify.bench
 	$(BIN)/python -m followbot.services.sim.bench
 
