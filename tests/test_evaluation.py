@@ -490,6 +490,14 @@ def test_candidate_detection_table_5_1():
 # --------------------------------------------------------------------------- verification
 
 
+def test_robot_bumps_is_the_simulator_s_count_at_the_end_of_the_run():
+    recs = [record(k, [person(TARGET, 2.0, 0.0)]) for k in range(5)]
+    assert compute_metrics(run_of(recs))["robot_bumps"] == 0
+    for k, n in enumerate([0, 0, 1, 1, 2]):
+        recs[k].truth = msgspec.structs.replace(recs[k].truth, robot_bumps=n)
+    assert compute_metrics(run_of(recs))["robot_bumps"] == 2
+
+
 def test_verification_counting():
     t_pos, b_pos, far = (2.0, 0.0), (2.0, 1.0), (2.5, 0.0)
 

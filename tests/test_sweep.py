@@ -59,6 +59,11 @@ def test_aggregate_counts_each_target_as_the_issues_state_it():
     assert s["reacquire_turn_mean_s"] == pytest.approx(0.2)
     assert s["reacquire_laser_mean_s"] == pytest.approx(0.3)
     assert s["reacquire_camera_mean_s"] == pytest.approx(0.4)
+    # the simulator's bumper: runs with a contact, and the contacts (missing: none)
+    assert (s["bump_runs"], s["bumps"]) == (0, 0)
+    metrics["a"]["robot_bumps"], metrics["b"]["robot_bumps"] = 2, 0
+    s = aggregate(metrics)
+    assert (s["bump_runs"], s["bumps"]) == (1, 2)
 
 
 def test_report_against_another_sweep_lists_only_the_runs_that_differ():
