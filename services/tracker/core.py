@@ -86,9 +86,6 @@ from followbot.schemas import (
 
 from .estimators import Estimator, estimator_factory, wrap_angle
 
-PAIR_LEG_MARGIN_M = 0.05
-"""pair_leg_jump_m: how much nearer the prediction than the pair's centre a leg must be."""
-
 __all__ = [
     "OdometryBuffer",
     "Pose",
@@ -440,15 +437,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     track the pair is split, one leg to each; otherwise a track may take either leg alone
     when that leg is nearer its prediction than the pair's centre. 0: always the centre. In
     the simulator a person's own legs were at most 0.36 m apart, such cross pairs 0.40-0.49."""
-    pair_leg_jump_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
-    """Beyond the thesis: a two-leg candidate (legs closer than split_pair_m) whose centre
-    lies more than this from a track's prediction, while one of its legs lies at least
-    PAIR_LEG_MARGIN_M nearer it, is that track's lone leg paired with something else -- a
-    passer-by's leg 0.2 m away (thesis_5_2_4_side_by_side: the target's far leg hidden by the
-    passer-by, its near leg paired with the passer-by's, and the estimate moved 0.23 m onto
-    the pair's centre), or the corner of a partition beside a parked robot
-    (hidden_target_bystanders): the track is updated with that leg alone. None: the centre
-    (as the thesis)."""
     one_leg_noise_scale: Annotated[float, msgspec.Meta(ge=1, le=100)] = 1.0
     """Beyond the thesis: a track updated with a lone leg (a one-leg candidate, or one leg of
     a split pair) scales its measurement noise by this. The thesis treats every candidate
@@ -868,7 +856,7 @@ class Tracker:
         cands = candidates.candidates
         z = np.array([[c.x_m, c.y_m] for c in cands], dtype=float).reshape(-1, 2)
         # association units: a candidate, or one leg of a pair split between two tracks
-        unit_cand, points, starts, free = self._units(candidates, z)
+        unit_cand, points, starts = self._units(candidates, z)
         ids = list(self.tracks)
         matched: dict[int, int] = {}  # track id -> unit index
         measured: dict[int, np.ndarray] = {}  # track id -> the point it is updated with
@@ -890,7 +878,6 @@ class Tracker:
                 best = np.column_stack(
                     [np.argmin(g, axis=1) for g in np.split(cost_p, starts[1:], axis=1)]
                 )
-                self._hold_pair_centres(ids, points, starts, free, cost_p, cost, best)
             if s.front_margin_m is not None and self.target_id in self.tracks:
                 # someone passing in front of the target hides it: not the target's candidate
                 # when another track can take it (alone, it may be the target coming closer,
@@ -1198,20 +1185,16 @@ class Tracker:
 
     def _units(
         self, candidates: PersonCandidates, z: np.ndarray
-    ) -> tuple[list[int], np.ndarray, np.ndarray | None, list[bool] | None]:
+    ) -> tuple[list[int], np.ndarray, np.ndarray | None]:
         """What the tracks are associated with: per unit, the candidate it comes from and the
         points a track may be updated with (``starts``: where each unit's points begin; None
-        when every unit is one point), and whether a track may take any of a unit's points
-        (``free``; False: a leg only by the rule of pair_leg_jump_m).
+        when every unit is one point).
 
         A pair whose legs are more than ``split_pair_m`` apart may be one leg each of two
         people. When each leg lies in the gate of a different track, nearest first, it is
         split into two one-leg units; otherwise it stays one unit whose points are its centre
-        and each of its legs (a track takes the one nearest its prediction). With
-        pair_leg_jump_m every other pair is such a unit too, its legs held back unless the
-        centre jumped (:meth:`_hold_pair_centres`)."""
+        and each of its legs (a track takes the one nearest its prediction)."""
         split = self.settings.split_pair_m
-        jump = self.settings.pair_leg_jump_m
         cands = candidates.candidates
         wide = set()
         if split:
@@ -1224,13 +1207,11 @@ class Tracker:
                 )
                 > split
             }
-        pairs = {c for c, cand in enumerate(cands) if len(cand.legs) == 2} if jump else set()
-        if not wide and not pairs:
-            return list(range(len(cands))), z, None, None
+        if not wide:
+            return list(range(len(cands))), z, None
         unit_cand: list[int] = []
         pts: list[np.ndarray] = []
         starts: list[int] = []
-        free: list[bool] = []
         for c, cand in enumerate(cands):
             legs = [np.array([leg.x_m, leg.y_m]) for leg in cand.legs]
             if c in wide and len({self._nearest_gated(leg) for leg in legs} - {-1}) == 2:
@@ -1238,34 +1219,13 @@ class Tracker:
                     unit_cand.append(c)
                     starts.append(len(pts))
                     pts.append(leg)
-                    free.append(True)
                 continue
             unit_cand.append(c)
             starts.append(len(pts))
             pts.append(z[c])
-            free.append(c in wide or c not in pairs)
-            if c in wide or c in pairs:
+            if c in wide:
                 pts.extend(legs)
-        return unit_cand, np.array(pts), np.array(starts), free
-
-    def _hold_pair_centres(self, ids, points, starts, free, cost_p, cost, best) -> None:
-        """pair_leg_jump_m: where a track chose a leg of a pair that is not ``free``, it takes
-        the pair's centre instead unless the centre lies more than pair_leg_jump_m from its
-        prediction and that leg PAIR_LEG_MARGIN_M nearer (settings). In place."""
-        jump = self.settings.pair_leg_jump_m
-        if free is None or jump is None:
-            return
-        for c in np.flatnonzero(~np.asarray(free, dtype=bool)).tolist():
-            k = int(starts[c])
-            for r, tid in enumerate(ids):
-                if best[r, c] == 0 or not np.isfinite(cost[r, c]):
-                    continue
-                pred = self.tracks[tid].position
-                dc = float(np.hypot(*(points[k] - pred)))
-                dl = float(np.hypot(*(points[k + int(best[r, c])] - pred)))
-                if not (dc > jump and dl <= dc - PAIR_LEG_MARGIN_M):
-                    best[r, c] = 0
-                    cost[r, c] = cost_p[r, k]
+        return unit_cand, np.array(pts), np.array(starts)
 
     def _nearest_gated(self, xy: np.ndarray) -> int:
         """The track whose gate holds ``xy`` at the least distance, or -1."""
