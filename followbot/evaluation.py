@@ -83,6 +83,11 @@ Verification accuracy (``verification_*``)
     Time with the true robot-to-target distance in [1.0, 2.0] m divided by the time tracked
     (``tracked_s``).
 
+``robot_bumps``
+    The simulator's count of the robot's contacts with the world (``GroundTruth.robot_bumps``
+    at the run's end; its bumper stops the base there, docs/scenarios.md). A follower that
+    drives into furniture shows here, whatever its tracking figures.
+
 ``reacquire_s``
     An occlusion episode is a maximal run of scans with the target not visible to the laser,
     at least ``min_occlusion_s`` long (default 0.2 s, so a one-scan dropout at 8-10 Hz is not
@@ -816,6 +821,7 @@ KEY_METRICS: list[tuple[str, str, str, str]] = [
     ("identity_switches", "Identity switches", "ID sw.", "low"),
     ("wrong_target_s", "Time on a wrong person (s)", "wrong s", "low"),
     ("follow_distance_share", "Follow distance in band (share of tracked time)", "in band", "high"),
+    ("robot_bumps", "Robot's contacts with the world (simulator's bumper)", "bumps", "low"),
     ("reacquire_s", "Mean re-acquisition time (s)", "reacq. s", "low"),
     ("mota", "MOTA", "MOTA", "high"),
     ("motp_m", "MOTP (m)", "MOTP m", "low"),
