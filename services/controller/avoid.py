@@ -80,12 +80,14 @@ class ObstacleGuard:
         min_speed_mps: float,
         ignore_near_target_m: float,
         min_progress: float = 0.5,
+        between_m: float = 0.125,
         step_m: float = 0.05,
     ) -> None:
         if turn_candidates < 2:
             raise ValueError("turn_candidates must be >= 2")
         self.radius = body_radius_m + margin_m
         self.body_radius = body_radius_m
+        self.between_m = between_m
         self.horizon = horizon_s
         self.decel = decel_mps2
         self.min_speed = min_speed_mps
@@ -191,4 +193,4 @@ class ObstacleGuard:
             return False
         along = (pts[:, 0] * tx + pts[:, 1] * ty) / r
         across = np.abs(pts[:, 1] * tx - pts[:, 0] * ty) / r
-        return bool(np.any((along > 0.0) & (along < r) & (across < 0.5 * self.body_radius)))
+        return bool(np.any((along > 0.0) & (along < r) & (across < self.between_m)))

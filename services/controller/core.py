@@ -92,6 +92,8 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     avoid_min_progress: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.5
     """A way round must bring the base at least this share of the command's own gain nearer
     the target (avoid.py)."""
+    avoid_between_m: Annotated[float, msgspec.Meta(ge=0)] = 0.125
+    """What lies within this of the line to the target is "on the line" (avoid_wait_s)."""
     avoid_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 1.5
     """Something on the line to the target is waited for this long before the base goes
     round it (avoid.py; 0: at once)."""
@@ -146,6 +148,7 @@ class FollowController:
                 min_speed_mps=s.avoid_min_speed_mps,
                 ignore_near_target_m=s.avoid_ignore_target_m,
                 min_progress=s.avoid_min_progress,
+                between_m=s.avoid_between_m,
             )
             if s.avoid_obstacles
             else None
