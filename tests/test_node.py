@@ -205,3 +205,17 @@ def test_lockstep_barrier_sees_an_answer_that_came_while_the_node_was_busy(net):
     missing = barrier.wait(7, timeout_s=30.0)
     t.join()
     assert missing == [] and barrier.timeouts == {}
+
+
+def test_run_timer_runs_a_named_timer_now_and_keeps_its_schedule(net):
+    node = Node("svc", NodeSettings(), net.bus("svc"))
+    calls = []
+    node.every(3600.0, lambda: calls.append(1), name="hourly")
+    node.spin_once()
+    assert calls == []  # not due for an hour
+    node.run_timer("hourly")
+    assert calls == [1]
+    node.spin_once()
+    assert calls == [1]  # its schedule did not move
+    with pytest.raises(KeyError, match="no timer named 'daily'"):
+        node.run_timer("daily")

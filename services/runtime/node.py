@@ -270,6 +270,17 @@ class Node:
         period_ns = int(period_s * 1e9)
         self._timers.append([time.monotonic_ns() + period_ns, period_ns, fn, name or fn.__name__])
 
+    def run_timer(self, name: str) -> None:
+        """Run the timer ``name`` (see :meth:`every`) once now, as the loop would (errors
+        counted in Health), without moving its schedule: for tests, and for a service that
+        wants a tick at once. KeyError if there is no such timer."""
+        for t in self._timers:
+            if t[3] == name:
+                with self._lock:
+                    self._call("timer", t[2])
+                return
+        raise KeyError(f"no timer named {name!r} (have {[t[3] for t in self._timers]})")
+
     def reject(self, inp: _Input, reason: str) -> None:
         """Count a message the service itself refuses (valid on the wire, unusable for it, e.g.
         an image of the wrong size) in ``Health.rejected[topic]``, with a rate-limited log."""

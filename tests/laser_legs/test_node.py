@@ -226,9 +226,7 @@ def test_detector_settings_while_lost_apply_only_while_the_tracker_reports_a_los
         assert len(h.out[-1].candidates) == found, status
         assert off.out[-1].candidates == []
     assert h.out[-1].candidates[0].x_m == pytest.approx(3.8, abs=0.1)
-    for timer in h.node._timers:  # the notes' timer, due now
-        timer[0] = 0
-    h.node.spin_once()
+    h.node.run_timer("notes")
     assert "lost_scans=2" in h.node.notes and "lost_detector_errors=0" in h.node.notes
     with pytest.raises(SettingsError, match=r"detector_settings_while_lost.*unknown field `foo`"):
         load_settings(LaserLegsSettings, overrides=["detector_settings_while_lost={foo: 1}"])
