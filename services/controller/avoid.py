@@ -43,7 +43,25 @@ import math
 
 import numpy as np
 
-__all__ = ["ObstacleGuard", "scan_points"]
+__all__ = ["MOVED_M", "MOVED_SHARE", "ObstacleGuard", "moved_into_frame", "scan_points"]
+
+MOVED_M = 0.03
+"""wait_moving_only: a return this far from every return of the scan before has moved."""
+MOVED_SHARE = 0.3
+"""... and something on the line moved when this share of its returns did."""
+
+
+def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.ndarray:
+    """``points`` of the frame before, in the frame of the base after driving the arc (v, w)
+    for ``dt_s``."""
+    th = w * dt_s
+    if abs(w) > 1e-9:
+        dx, dy = v / w * math.sin(th), v / w * (1.0 - math.cos(th))
+    else:
+        dx, dy = v * dt_s, 0.0
+    c, s = math.cos(th), math.sin(th)
+    q = points - np.array([dx, dy])
+    return np.column_stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]])
 
 
 def scan_points(
@@ -81,6 +99,7 @@ class ObstacleGuard:
         ignore_near_target_m: float,
         min_progress: float = 0.5,
         between_m: float = 0.125,
+        wait_moving_only: bool = False,
         step_m: float = 0.05,
     ) -> None:
         if turn_candidates < 2:
@@ -88,6 +107,7 @@ class ObstacleGuard:
         self.radius = body_radius_m + margin_m
         self.body_radius = body_radius_m
         self.between_m = between_m
+        self.wait_moving_only = wait_moving_only
         self.horizon = horizon_s
         self.decel = decel_mps2
         self.min_speed = min_speed_mps
@@ -144,10 +164,13 @@ class ObstacleGuard:
         points: np.ndarray,
         target_xy: tuple[float, float] | None,
         may_swerve: bool = True,
+        previous: np.ndarray | None = None,
     ) -> tuple[float, float, str | None]:
         """(v, w, reason) for the command (v, w) and the scan's base-frame ``points``;
         reason None: unchanged. ``may_swerve`` False: something on the line to the target
-        is waited for (reason ``avoid_wait``) rather than gone round."""
+        is waited for (reason ``avoid_wait``) rather than gone round; ``previous``: the scan
+        before, moved into this scan's frame -- then only something that moved is waited
+        for (``wait_moving_only``)."""
         if v <= 0.0 or points.shape[0] == 0:
             return v, w, None
         length = self.reach_m(v)
@@ -162,7 +185,7 @@ class ObstacleGuard:
         own = float(self.free_lengths(v, np.array([w]), pts, length)[0])
         if own >= length:
             return v, w, None
-        if not may_swerve and target_xy is not None and self._between(pts, target_xy):
+        if not may_swerve and target_xy is not None and self._between(pts, target_xy, previous):
             return self._slow(v, w, own, "avoid_wait")
         free = self.free_lengths(v, self.turns, pts, length)
         ok = free >= length
@@ -184,13 +207,23 @@ class ObstacleGuard:
             return 0.0, w, "avoid_stop" if reason == "avoid_slow" else reason
         return slow, w * slow / v, reason  # the same arc, slower
 
-    def _between(self, pts: np.ndarray, target_xy: tuple[float, float]) -> bool:
-        """Something lies on the line from the base to the target (within half the body's
-        radius of it, short of the target)."""
+    def _between(
+        self, pts: np.ndarray, target_xy: tuple[float, float], previous: np.ndarray | None
+    ) -> bool:
+        """Something lies on the line from the base to the target (within ``between_m`` of
+        it, short of the target) -- and, with ``previous`` and wait_moving_only, it moved:
+        at least MOVED_SHARE of those returns lie more than MOVED_M from every return of the
+        scan before (a wall, a box or a pillar stays where it was; a walker's legs do not)."""
         tx, ty = target_xy
         r = math.hypot(tx, ty)
         if r <= 0.0:
             return False
         along = (pts[:, 0] * tx + pts[:, 1] * ty) / r
         across = np.abs(pts[:, 1] * tx - pts[:, 0] * ty) / r
-        return bool(np.any((along > 0.0) & (along < r) & (across < self.between_m)))
+        on = pts[(along > 0.0) & (along < r) & (across < self.between_m)]
+        if on.shape[0] == 0:
+            return False
+        if not self.wait_moving_only or previous is None or previous.shape[0] == 0:
+            return True
+        d = np.hypot(on[:, None, 0] - previous[None, :, 0], on[:, None, 1] - previous[None, :, 1])
+        return bool(np.mean(d.min(axis=1) > MOVED_M) >= MOVED_SHARE)

@@ -40,7 +40,7 @@ import numpy as np
 
 from followbot.schemas import TrackState
 
-from .avoid import ObstacleGuard
+from .avoid import ObstacleGuard, moved_into_frame
 
 __all__ = ["Command", "ControllerSettings", "FollowController"]
 
@@ -94,6 +94,10 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     the target (avoid.py)."""
     avoid_between_m: Annotated[float, msgspec.Meta(ge=0)] = 0.125
     """What lies within this of the line to the target is "on the line" (avoid_wait_s)."""
+    avoid_wait_moving_only: bool = False
+    """Wait (avoid_wait_s) only for something on the line that moved since the scan before
+    (the previous scan moved by the base's own last command); a box or a pillar there is gone
+    round at once."""
     avoid_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 1.5
     """Something on the line to the target is waited for this long before the base goes
     round it (avoid.py; 0: at once)."""
@@ -137,6 +141,7 @@ class FollowController:
         self._goal = (0.0, 0.0, 0.0)
         self._goal_reason = "initialising"
         self._waited_s = 0.0  # avoid_wait_s: how long the base has waited so far
+        self._previous: np.ndarray | None = None  # avoid_wait_moving_only: the scan before
         self.guard = (
             ObstacleGuard(
                 body_radius_m=s.body_radius_m,
@@ -149,6 +154,7 @@ class FollowController:
                 ignore_near_target_m=s.avoid_ignore_target_m,
                 min_progress=s.avoid_min_progress,
                 between_m=s.avoid_between_m,
+                wait_moving_only=s.avoid_wait_moving_only,
             )
             if s.avoid_obstacles
             else None
@@ -206,8 +212,13 @@ class FollowController:
                 if target.status in ("tracking", "coasting"):
                     xy = (target.x_m - target.shift_x_m, target.y_m - target.shift_y_m)
                 may = self._waited_s >= s.avoid_wait_s
-                v, w, why = self.guard.apply(v, w, obstacles, xy, may_swerve=may)
+                before = None
+                if self._previous is not None and math.isfinite(dt_s):
+                    before = moved_into_frame(self._previous, self.v, self.w, max(dt_s, 0.0))
+                v, w, why = self.guard.apply(v, w, obstacles, xy, may_swerve=may, previous=before)
                 reason = why or reason
+        if obstacles is not None:
+            self._previous = obstacles
         if reason == "avoid_wait":
             self._waited_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
         elif reason != "avoid_turn":
