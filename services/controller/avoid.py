@@ -47,7 +47,7 @@ __all__ = ["MOVED_M", "MOVED_SHARE", "ObstacleGuard", "moved_into_frame", "scan_
 
 MOVED_M = 0.03
 """wait_moving_only: a return this far from every return of the scan before has moved."""
-MOVED_SHARE = 0.3
+MOVED_SHARE = 0.1
 """... and something on the line moved when this share of its returns did."""
 
 
