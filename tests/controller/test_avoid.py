@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from followbot.schemas import TrackState
-from followbot.services.controller.avoid import ObstacleGuard, scan_points
+from followbot.services.controller.avoid import ObstacleGuard, moved_into_frame, scan_points
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.sim.scenario import load_builtin
 from followbot.services.sim.simulation import Simulation
@@ -152,3 +152,33 @@ def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
     # the line clears: the rule's own command again, and the next passer-by is waited for
     assert ctl.on_target(t, 0.12, np.empty((0, 2))).reason == "max_speed"
     assert ctl.on_target(t, 0.12, passer).reason == "avoid_wait"
+
+
+def test_moved_into_frame_follows_the_base_s_own_motion():
+    p = np.array([[1.0, 0.0]])
+    assert moved_into_frame(p, 0.5, 0.0, 1.0) == pytest.approx(np.array([[0.5, 0.0]]))
+    assert moved_into_frame(p, 0.0, math.pi / 2, 1.0) == pytest.approx(np.array([[0.0, -1.0]]))
+    # an arc: a point that stays put in the world ends where the robot's new frame puts it
+    v, w, dt = 0.5, 0.8, 0.5
+    th = w * dt
+    x, y = v / w * math.sin(th), v / w * (1 - math.cos(th))
+    q = moved_into_frame(np.array([[2.0, 1.0]]), v, w, dt)[0]
+    back = np.array([x + math.cos(th) * q[0] - math.sin(th) * q[1],
+                     y + math.sin(th) * q[0] + math.cos(th) * q[1]])  # fmt: skip
+    assert back == pytest.approx([2.0, 1.0])
+
+
+def test_with_wait_moving_only_a_pillar_on_the_line_is_gone_round_at_once():
+    ang = np.linspace(0.0, 2 * math.pi, 40)
+    thing = np.column_stack([0.8 + 0.12 * np.cos(ang), 0.12 * np.sin(ang)])
+    g = guard(wait_moving_only=True)
+    # where it was a scan ago: a pillar; 0.1 m to the side: a passer-by
+    assert g.apply(0.75, 0.0, thing, (2.5, 0.0), may_swerve=False, previous=thing)[2] == (
+        "avoid_turn"
+    )
+    walked = thing + np.array([0.0, 0.1])
+    assert g.apply(0.75, 0.0, thing, (2.5, 0.0), may_swerve=False, previous=walked)[2] == (
+        "avoid_wait"
+    )
+    # no scan before: waited for, as without the setting
+    assert g.apply(0.75, 0.0, thing, (2.5, 0.0), may_swerve=False)[2] == "avoid_wait"
