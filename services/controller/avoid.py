@@ -25,8 +25,9 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   the spot touches nothing).
 
 * Someone crossing between the robot and its target is waited for, not gone round: while
-  what blocks the arc includes something on the line to the target (within half the body's
-  radius of it), the base first slows on its own arc to stop short and waits, up to
+  what blocks the arc includes something on the line to the target (within ``between_m`` of
+  it) that moved since the scan before (``wait_moving_only``: a box or a pillar there is
+  gone round at once), the base first slows on its own arc to stop short and waits, up to
   ``wait_s`` (reason ``avoid_wait``, the controller keeps the time); only then does it go
   round. A passer-by clears the line within a second or two; a pillar does not. Swerving at
   full speed round a passer-by turned the laser's view away from the target just as it was
@@ -98,8 +99,8 @@ class ObstacleGuard:
         min_speed_mps: float,
         ignore_near_target_m: float,
         min_progress: float = 0.5,
-        between_m: float = 0.125,
-        wait_moving_only: bool = False,
+        between_m: float = 0.25,
+        wait_moving_only: bool = True,
         step_m: float = 0.05,
     ) -> None:
         if turn_candidates < 2:

@@ -92,9 +92,11 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     avoid_min_progress: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.5
     """A way round must bring the base at least this share of the command's own gain nearer
     the target (avoid.py)."""
-    avoid_between_m: Annotated[float, msgspec.Meta(ge=0)] = 0.125
-    """What lies within this of the line to the target is "on the line" (avoid_wait_s)."""
-    avoid_wait_moving_only: bool = False
+    avoid_between_m: Annotated[float, msgspec.Meta(ge=0)] = 0.25
+    """What lies within this of the line to the target is "on the line" (avoid_wait_s). 0.25
+    with avoid_wait_moving_only since the seventeenth session (0.125 before; docs/tracker.md:
+    76 runs, switch runs 3 -> 1)."""
+    avoid_wait_moving_only: bool = True
     """Wait (avoid_wait_s) only for something on the line that moved since the scan before
     (the previous scan moved by the base's own last command); a box or a pillar there is gone
     round at once."""

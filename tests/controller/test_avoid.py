@@ -137,14 +137,24 @@ def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
     slows to stop short and waits 1.5 s; if they do not clear the line, it goes round."""
     ang = np.linspace(0.0, 2 * math.pi, 40)
     passer = np.column_stack([0.8 + 0.12 * np.cos(ang), 0.12 * np.sin(ang)])
-    g = guard()
+    g = guard(between_m=0.125)
     v, w, why = g.apply(0.75, 0.0, passer, (2.5, 0.0), may_swerve=False)
     assert why == "avoid_wait" and v < 0.75 and w == 0.0
     assert g.apply(0.75, 0.0, passer, (2.5, 0.0), may_swerve=True)[2] == "avoid_turn"
-    # beside the line (a wall to the right), no waiting: turned away at once
+    # beside the line (a wall to the right, 0.28 m off it), no waiting: turned away at once
     wall = line(-1.0, -0.28, 4.0, -0.28)
     assert g.apply(0.75, -0.3, wall, (2.5, 0.0), may_swerve=False)[2] == "avoid_turn"
-    ctl = FollowController(ControllerSettings(avoid_obstacles=True, avoid_wait_s=1.5))
+    # the same returns every scan: with wait_moving_only that is a still thing, gone round
+    # at once; without, waited for (the timing tested here)
+    still = FollowController(ControllerSettings())
+    t0 = TrackState(stamp_ns=0, status="tracking", x_m=2.5, y_m=0.0)
+    assert [still.on_target(t0, 0.12, passer).reason for _ in range(2)] == [
+        "avoid_wait",  # no scan before: waited for
+        "avoid_turn",
+    ]
+    ctl = FollowController(
+        ControllerSettings(avoid_obstacles=True, avoid_wait_s=1.5, avoid_wait_moving_only=False)
+    )
     t = TrackState(stamp_ns=0, status="tracking", x_m=2.5, y_m=0.0)
     reasons = [ctl.on_target(t, 0.12, passer).reason for _ in range(20)]
     waited = reasons.index("avoid_turn")
