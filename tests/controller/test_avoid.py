@@ -192,14 +192,3 @@ def test_with_wait_moving_only_a_pillar_on_the_line_is_gone_round_at_once():
     )
     # no scan before: waited for, as without the setting
     assert g.apply(0.75, 0.0, thing, (2.5, 0.0), may_swerve=False)[2] == "avoid_wait"
-
-
-def test_slow_steps_find_the_tighter_turn_out_of_a_corner():
-    """A wall 0.6 m ahead, the target beyond it to the left: at full speed no arc is free, so
-    without slow_steps the base only slows towards the wall; with 2 halvings it turns away at
-    half speed (the same turn rates bend tighter)."""
-    wall = line(0.6, -3.0, 0.6, 3.0, n=400)
-    v, w, why = guard(slow_steps=0).apply(0.75, 0.0, wall, (3.0, 2.5))
-    assert why == "avoid_slow" and w == 0.0
-    v, w, why = guard(slow_steps=2).apply(0.75, 0.0, wall, (3.0, 2.5))
-    assert why == "avoid_turn" and v == pytest.approx(0.375) and w > 0.5
