@@ -19,9 +19,7 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   is nearest the command's (reason ``avoid_turn``). A way round that leads away is no way:
   a robot 1.2 m from someone walking round a pillar would drive off past the pillar's other
   side and lose them (occlusion_pillar).
-* None (``slow_steps`` > 0: none at half the speed either, or a quarter, ...; slower, the
-  same turn rates bend tighter, the way out of a corner the base has stopped in): the
-  command's own arc at the speed that stops within its free length (the same
+* None: the command's own arc at the speed that stops within its free length (the same
   curvature, so the same arc; reason ``avoid_slow``); under ``min_speed_mps`` the base stops
   and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning on
   the spot touches nothing).
@@ -103,7 +101,6 @@ class ObstacleGuard:
         min_progress: float = 0.5,
         between_m: float = 0.25,
         wait_moving_only: bool = True,
-        slow_steps: int = 0,
         step_m: float = 0.05,
     ) -> None:
         if turn_candidates < 2:
@@ -112,7 +109,6 @@ class ObstacleGuard:
         self.body_radius = body_radius_m
         self.between_m = between_m
         self.wait_moving_only = wait_moving_only
-        self.slow_steps = slow_steps
         self.horizon = horizon_s
         self.decel = decel_mps2
         self.min_speed = min_speed_mps
@@ -192,32 +188,18 @@ class ObstacleGuard:
             return v, w, None
         if not may_swerve and target_xy is not None and self._between(pts, target_xy, previous):
             return self._slow(v, w, own, "avoid_wait")
-        for k, vk in enumerate(self._speeds(v)):
-            # slower, the same turn rates bend tighter: a way out of a corner at last
-            lk = self.reach_m(vk)
-            if k and self.free_lengths(vk, np.array([w]), pts, lk)[0] >= lk:
-                return vk, w, "avoid_slow"  # the command's own arc is free, slower
-            free = self.free_lengths(vk, self.turns, pts, lk)
-            ok = free >= lk
-            if target_xy is not None:  # a way round must still lead towards the target
-                p0 = float(self.progress(vk, np.array([w]), lk, target_xy)[0])
-                ok &= self.progress(vk, self.turns, lk, target_xy) >= (
-                    self.min_progress * p0 if p0 > 0.0 else p0
-                )
-            if ok.any():
-                cand = np.where(ok)[0]
-                best = cand[np.argmin(np.abs(self.turns[cand] - w))]
-                return vk, float(self.turns[best]), "avoid_turn"
+        free = self.free_lengths(v, self.turns, pts, length)
+        ok = free >= length
+        if target_xy is not None:  # a way round must still lead towards the target
+            p0 = float(self.progress(v, np.array([w]), length, target_xy)[0])
+            ok &= self.progress(v, self.turns, length, target_xy) >= (
+                self.min_progress * p0 if p0 > 0.0 else p0
+            )
+        if ok.any():
+            cand = np.where(ok)[0]
+            best = cand[np.argmin(np.abs(self.turns[cand] - w))]
+            return v, float(self.turns[best]), "avoid_turn"
         return self._slow(v, w, own, "avoid_slow")
-
-    def _speeds(self, v: float) -> list[float]:
-        """The command's speed, then slower ones (slow_steps halvings, not under min_speed)."""
-        out = [v]
-        for _ in range(self.slow_steps):
-            if out[-1] / 2.0 < self.min_speed:
-                break
-            out.append(out[-1] / 2.0)
-        return out
 
     def _slow(self, v: float, w: float, own: float, reason: str) -> tuple[float, float, str]:
         """The command's own arc, at the speed that stops within its free length ``own``."""

@@ -100,8 +100,6 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     """Wait (avoid_wait_s) only for something on the line that moved since the scan before
     (the previous scan moved by the base's own last command); a box or a pillar there is gone
     round at once."""
-    avoid_slow_steps: Annotated[int, msgspec.Meta(ge=0, le=8)] = 0
-    """With no way round at the command's speed, try this many halvings of it (avoid.py)."""
     avoid_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 1.5
     """Something on the line to the target is waited for this long before the base goes
     round it (avoid.py; 0: at once)."""
@@ -159,7 +157,6 @@ class FollowController:
                 min_progress=s.avoid_min_progress,
                 between_m=s.avoid_between_m,
                 wait_moving_only=s.avoid_wait_moving_only,
-                slow_steps=s.avoid_slow_steps,
             )
             if s.avoid_obstacles
             else None
