@@ -44,6 +44,9 @@ import math
 
 import numpy as np
 
+from followbot.schemas import LaserScan
+from followbot.services.laser_legs.core import beam_geometry, valid_mask
+
 __all__ = ["MOVED_M", "MOVED_SHARE", "ObstacleGuard", "moved_into_frame", "scan_points"]
 
 MOVED_M = 0.03
@@ -65,22 +68,15 @@ def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.
     return np.column_stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]])
 
 
-def scan_points(
-    ranges: np.ndarray,
-    angle_min_rad: float,
-    angle_increment_rad: float,
-    range_min_m: float,
-    range_max_m: float,
-    mount_x_m: float = 0.0,
-) -> np.ndarray:
-    """(N, 2) base-frame points of a scan's valid returns (NaN, inf, 0 and out-of-range
-    beams are no return)."""
-    r = np.asarray(ranges, dtype=np.float64).reshape(-1)
-    a = angle_min_rad + angle_increment_rad * np.arange(r.size)
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r <= range_max_m)
-    r, a = r[ok], a[ok]
-    return np.column_stack([mount_x_m + r * np.cos(a), r * np.sin(a)])
+def scan_points(scan: LaserScan, mount_x_m: float = 0.0) -> np.ndarray:
+    """(N, 2) base-frame points of ``scan``'s returns (no return -- NaN, inf, 0, out of
+    range -- as laser_legs' ``valid_mask`` says), the laser ``mount_x_m`` ahead of the base."""
+    r = scan.ranges_m()
+    n = r.shape[0]
+    valid = valid_mask(r, scan.range_min_m, scan.range_max_m)
+    _, cos, sin = beam_geometry(float(scan.angle_min_rad), float(scan.angle_increment_rad), n)
+    r = r[valid].astype(np.float64)
+    return np.column_stack([mount_x_m + r * cos[:n][valid], r * sin[:n][valid]])
 
 
 class ObstacleGuard:

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from followbot.schemas import TrackState
+from followbot.schemas import LaserScan, TrackState
 
 from .avoid import scan_points
 from .core import ControllerSettings, FollowController
@@ -40,6 +40,16 @@ def _ranges(case: str) -> np.ndarray:
     return r
 
 
+def _scan(case: str) -> LaserScan:
+    return LaserScan.from_ranges(
+        _ranges(case).astype(np.float32),
+        stamp_ns=0,
+        angle_min_rad=-FOV / 2,
+        angle_increment_rad=FOV / (BEAMS - 1),
+        range_min_m=0.05,
+    )
+
+
 def _median_us(fn, repeats: int = 300) -> float:
     times = []
     for _ in range(repeats):
@@ -55,18 +65,13 @@ def main() -> None:
     rule = FollowController(ControllerSettings(avoid_obstacles=False))
     rows.append(("thesis rule alone", _median_us(lambda: rule.on_target(target, 0.12))))
     for case in ("room", "wall", "pillar"):
-        pts = scan_points(_ranges(case), -FOV / 2, FOV / (BEAMS - 1), 0.05, 30.0)
+        pts = scan_points(_scan(case))
         ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
         reason = ctl.on_target(target, 0.12, pts).reason
         us = _median_us(lambda c=ctl, p=pts: c.on_target(target, 0.12, p))
         rows.append((f"guard, {case} ({reason})", us))
-    r = _ranges("room")
-    rows.append(
-        (
-            "scan -> points",
-            _median_us(lambda: scan_points(r, -FOV / 2, FOV / (BEAMS - 1), 0.05, 30.0)),
-        )
-    )
+    room = _scan("room")
+    rows.append(("scan -> points", _median_us(lambda: scan_points(room))))
     print(f"controller, one command ({BEAMS}-beam scan), median of 300:")
     print("| case | µs |")
     print("|---|---|")

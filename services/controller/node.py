@@ -109,14 +109,7 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         publish(c, t.stamp_ns)
 
     def on_scan(scan: LaserScan) -> None:
-        pts = scan_points(
-            scan.ranges_m(),
-            scan.angle_min_rad,
-            scan.angle_increment_rad,
-            scan.range_min_m,
-            scan.range_max_m,
-            settings.laser_mount_x_m,
-        )
+        pts = scan_points(scan, settings.laser_mount_x_m)
         scans = st["scans"]
         scans[scan.stamp_ns] = pts
         while len(scans) > 8:

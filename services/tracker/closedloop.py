@@ -164,14 +164,7 @@ def run(
                     dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
                     pts = None
                     if ctl.guard is not None:  # the controller's obstacle guard sees the scan
-                        pts = scan_points(
-                            scan.ranges_m(),
-                            scan.angle_min_rad,
-                            scan.angle_increment_rad,
-                            scan.range_min_m,
-                            scan.range_max_m,
-                            sc.laser.mount_x_m,
-                        )
+                        pts = scan_points(scan, sc.laser.mount_x_m)
                     cmd = ctl.on_target(state, dt, pts)
                     sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
                     sim.command_pan(cmd.pan_rad)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from followbot.schemas import TrackState
+from followbot.schemas import LaserScan, TrackState
 from followbot.services.controller.avoid import ObstacleGuard, moved_into_frame, scan_points
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.sim.scenario import load_builtin
@@ -38,7 +38,11 @@ def line(x0, y0, x1, y1, n=200) -> np.ndarray:
 
 def test_scan_points_drop_no_returns_and_apply_the_mount():
     r = np.array([1.0, np.nan, np.inf, 0.0, 0.01, 50.0, 2.0])
-    pts = scan_points(r, -math.pi / 2, math.pi / 6, 0.05, 30.0, mount_x_m=0.1)
+    scan = LaserScan.from_ranges(
+        r, stamp_ns=0, angle_min_rad=-math.pi / 2, angle_increment_rad=math.pi / 6,
+        range_min_m=0.05, range_max_m=30.0,
+    )  # fmt: skip
+    pts = scan_points(scan, mount_x_m=0.1)
     assert pts.shape == (2, 2)
     assert pts[0] == pytest.approx([0.1, -1.0])
     assert pts[1] == pytest.approx([0.1 + 2.0 * math.cos(math.pi / 2), 2.0])
@@ -113,14 +117,7 @@ def _follow(avoid: bool, seconds: float = 14.0) -> tuple[int, float]:
             vx_mps=p.robot_vx_mps,
             vy_mps=p.robot_vy_mps,
         )
-        pts = scan_points(
-            scan.ranges_m(),
-            scan.angle_min_rad,
-            scan.angle_increment_rad,
-            scan.range_min_m,
-            scan.range_max_m,
-        )
-        c = ctl.on_target(st, period / 1e9, pts)
+        c = ctl.on_target(st, period / 1e9, scan_points(scan))
         sim.command_velocity(c.linear_mps, c.angular_radps)
     return sim.robot.bumps, math.hypot(p.robot_x_m, p.robot_y_m)
 
