@@ -44,6 +44,7 @@ import math
 
 import numpy as np
 
+from followbot.geometry import transform_points
 from followbot.schemas import LaserScan
 from followbot.services.laser_legs.core import beam_geometry, valid_mask
 
@@ -57,15 +58,13 @@ MOVED_SHARE = 0.1
 
 def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.ndarray:
     """``points`` of the frame before, in the frame of the base after driving the arc (v, w)
-    for ``dt_s``."""
+    for ``dt_s`` (the exact arc, then the shared SE(2) change of frame)."""
     th = w * dt_s
     if abs(w) > 1e-9:
         dx, dy = v / w * math.sin(th), v / w * (1.0 - math.cos(th))
     else:
         dx, dy = v * dt_s, 0.0
-    c, s = math.cos(th), math.sin(th)
-    q = points - np.array([dx, dy])
-    return np.column_stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]])
+    return transform_points(points, (0.0, 0.0, 0.0), (dx, dy, th))
 
 
 def scan_points(scan: LaserScan, mount_x_m: float = 0.0) -> np.ndarray:

@@ -73,6 +73,8 @@ import msgspec
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from followbot.geometry import Pose, se2_change, transform_points
+from followbot.geometry import rotation as _rot
 from followbot.schemas import (
     Horizon,
     Odometry,
@@ -97,7 +99,6 @@ __all__ = [
     "transform_points",
 ]
 
-Pose = tuple[float, float, float]
 _NS = 1_000_000_000
 _NO_VISION = ("no_vision", "vision_stale")
 
@@ -106,29 +107,6 @@ _NO_VISION = ("no_vision", "vision_stale")
 
 
 _I2 = np.eye(2)
-
-
-def _rot(theta: float) -> np.ndarray:
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s], [s, c]])
-
-
-def se2_change(pose0: Pose, pose1: Pose) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) with p1 = R p0 + t: base frame at odometry pose ``pose0`` -> at ``pose1``.
-
-    R = R(theta0 - theta1), t = R(-theta1) (t0 - t1)  (p1 = T1^-1 T0 p0).
-    """
-    x0, y0, th0 = pose0
-    x1, y1, th1 = pose1
-    rotation = _rot(th0 - th1)
-    translation = _rot(-th1) @ np.array([x0 - x1, y0 - y1])
-    return rotation, translation
-
-
-def transform_points(points: np.ndarray, pose0: Pose, pose1: Pose) -> np.ndarray:
-    """(n, 2) points in the base frame at ``pose0`` expressed in the base frame at ``pose1``."""
-    rotation, translation = se2_change(pose0, pose1)
-    return np.asarray(points, dtype=float) @ rotation.T + translation
 
 
 def hidden_from_laser(
