@@ -101,7 +101,6 @@ class ObstacleGuard:
         if turn_candidates < 2:
             raise ValueError("turn_candidates must be >= 2")
         self.radius = body_radius_m + margin_m
-        self.body_radius = body_radius_m
         self.between_m = between_m
         self.wait_moving_only = wait_moving_only
         self.horizon = horizon_s
