@@ -23,6 +23,17 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   curvature, so the same arc; reason ``avoid_slow``); under ``min_speed_mps`` the base stops
   and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning on
   the spot touches nothing).
+* Stopped so with the target known (``escape_m`` > 0, reason ``avoid_escape``): the base would
+  stand there for good when the only way on is sideways first -- at a corridor's mouth with
+  the corner 0.3 m ahead-right and the target straight on, every forward arc closes in on the
+  corner (ristic_wall_corridor, seed 1: 5 s standing, then the target gone). So the guard
+  looks for the heading nearest the target's bearing (within 90 deg of it, inside +-90 deg of
+  ahead) along which a straight run of ``escape_m`` keeps the disc clear of everything by
+  ``escape_clear_m`` (the margin may be used here, the body never). Straight ahead is such a
+  heading and no more than ``escape_slack`` further from the target's bearing: the base
+  drives on at the speed that stops within ``escape_m``. Otherwise it turns on the spot
+  towards that heading. The next command starts from the new pose as before: the rule's own
+  arc first, then the turns, and the escape only when those are stopped again.
 
 * Someone crossing between the robot and its target is waited for, not gone round: while
   what blocks the arc includes something on the line to the target (within ``between_m`` of
@@ -97,6 +108,10 @@ class ObstacleGuard:
         between_m: float = 0.25,
         wait_moving_only: bool = True,
         step_m: float = 0.05,
+        escape_m: float = 0.0,
+        escape_clear_m: float = 0.01,
+        escape_slack_rad: float = math.radians(15.0),
+        escape_headings: int = 37,
     ) -> None:
         if turn_candidates < 2:
             raise ValueError("turn_candidates must be >= 2")
@@ -110,6 +125,14 @@ class ObstacleGuard:
         self.step = step_m
         self.min_progress = min_progress
         self.turns = np.linspace(-max_turn_radps, max_turn_radps, turn_candidates)
+        self.max_turn = max_turn_radps
+        self.escape_m = escape_m
+        self.escape_clear = body_radius_m + escape_clear_m
+        self.escape_slack = escape_slack_rad
+        if escape_headings < 3:
+            raise ValueError("escape_headings must be >= 3")
+        # escape_m: headings -90..90 deg, one every 5 deg by default
+        self.headings = np.linspace(-math.pi / 2, math.pi / 2, escape_headings)
 
     def reach_m(self, v: float) -> float:
         """L: the horizon's travel plus the braking distance at speed ``v``."""
@@ -173,6 +196,7 @@ class ObstacleGuard:
         if target_xy is not None and self.ignore > 0.0:
             far = np.hypot(pts[:, 0] - target_xy[0], pts[:, 1] - target_xy[1]) > self.ignore
             pts = pts[far]
+        seen = pts
         # only what the disc can reach along any arc of this length
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= length + self.radius + self.step]
         if pts.shape[0] == 0:
@@ -193,7 +217,45 @@ class ObstacleGuard:
             cand = np.where(ok)[0]
             best = cand[np.argmin(np.abs(self.turns[cand] - w))]
             return v, float(self.turns[best]), "avoid_turn"
-        return self._slow(v, w, own, "avoid_slow")
+        out = self._slow(v, w, own, "avoid_slow")
+        if out[2] == "avoid_stop" and self.escape_m > 0.0 and target_xy is not None:
+            return self._escape(v, seen, target_xy) or out
+        return out
+
+    def free_headings(self, points: np.ndarray) -> np.ndarray:
+        """Of ``headings``, those along which a straight run of escape_m keeps the body
+        ``escape_clear_m`` clear of every point."""
+        d_run = self.escape_m
+        k = max(1, math.ceil(d_run / self.step))
+        s = np.linspace(d_run / k, d_run, k)
+        x = np.cos(self.headings)[:, None] * s[None, :]
+        y = np.sin(self.headings)[:, None] * s[None, :]
+        pts = points[np.hypot(points[:, 0], points[:, 1]) <= d_run + self.radius + self.step]
+        if pts.shape[0] == 0:
+            return np.ones(self.headings.shape, dtype=bool)
+        dx = x[:, :, None] - pts[None, None, :, 0]
+        dy = y[:, :, None] - pts[None, None, :, 1]
+        d = np.sqrt(dx * dx + dy * dy).min(axis=2)
+        return ~(d < self.escape_clear).any(axis=1)
+
+    def _escape(
+        self, v: float, points: np.ndarray, target_xy: tuple[float, float]
+    ) -> tuple[float, float, str] | None:
+        """The escape of the module doc: (v, w, "avoid_escape"), or None (no free heading
+        within 90 deg of the target's bearing)."""
+        bearing = math.atan2(target_xy[1], target_xy[0])
+        off = np.abs(np.angle(np.exp(1j * (self.headings - bearing))))
+        ok = self.free_headings(points) & (off <= math.pi / 2)
+        if not ok.any():
+            return None
+        cand = np.where(ok)[0]
+        best = cand[np.argmin(off[cand])]
+        ahead = int(np.argmin(np.abs(self.headings)))
+        if ok[ahead] and off[ahead] <= off[best] + self.escape_slack:
+            return min(v, self.speed_for(self.escape_m)), 0.0, "avoid_escape"
+        phi = float(self.headings[best])
+        w = min(self.max_turn, 4.0 * abs(phi) / self.horizon)
+        return 0.0, math.copysign(w, phi), "avoid_escape"
 
     def _slow(self, v: float, w: float, own: float, reason: str) -> tuple[float, float, str]:
         """The command's own arc, at the speed that stops within its free length ``own``."""

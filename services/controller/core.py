@@ -103,6 +103,10 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     avoid_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 1.5
     """Something on the line to the target is waited for this long before the base goes
     round it (avoid.py; 0: at once)."""
+    avoid_escape_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
+    """Stopped short with the target known, the base turns to the free heading nearest the
+    target and drives this far along it (avoid.py, reason avoid_escape; 0: off, it stands
+    there, as before the eighteenth session)."""
     avoid_ignore_target_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """Returns within this of the target's estimate are the target's legs, not obstacles
     (the rule stops 1.2 m short of them anyway)."""
@@ -144,6 +148,7 @@ class FollowController:
         self._goal_reason = "initialising"
         self._waited_s = 0.0  # avoid_wait_s: how long the base has waited so far
         self._previous: np.ndarray | None = None  # avoid_wait_moving_only: the scan before
+        self._escaping = False  # the last command was an escape (avoid_escape_m)
         self.guard = (
             ObstacleGuard(
                 body_radius_m=s.body_radius_m,
@@ -157,6 +162,7 @@ class FollowController:
                 min_progress=s.avoid_min_progress,
                 between_m=s.avoid_between_m,
                 wait_moving_only=s.avoid_wait_moving_only,
+                escape_m=s.avoid_escape_m,
             )
             if s.avoid_obstacles
             else None
@@ -213,7 +219,9 @@ class FollowController:
                 xy = None
                 if target.status in ("tracking", "coasting"):
                     xy = (target.x_m - target.shift_x_m, target.y_m - target.shift_y_m)
-                may = self._waited_s >= s.avoid_wait_s
+                # an escape under way is not broken off to wait: turning on the spot makes
+                # the walls near the line to the target look moved (avoid.py, escape)
+                may = self._waited_s >= s.avoid_wait_s or self._escaping
                 before = None
                 if self._previous is not None and math.isfinite(dt_s):
                     before = moved_into_frame(self._previous, self.v, self.w, max(dt_s, 0.0))
@@ -221,6 +229,7 @@ class FollowController:
                 reason = why or reason
         if obstacles is not None:
             self._previous = obstacles
+        self._escaping = reason == "avoid_escape"
         if reason == "avoid_wait":
             self._waited_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
         elif reason != "avoid_turn":
