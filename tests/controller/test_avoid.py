@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -97,11 +98,16 @@ def test_the_controller_stops_without_a_scan_and_leaves_the_thesis_rule_alone_wh
     assert off.guard is None and off.on_target(t, 0.12, None).reason == "max_speed"
 
 
-def _follow(avoid: bool, seconds: float = 14.0) -> tuple[int, float]:
+def _follow(
+    avoid: bool, seconds: float = 14.0, seed: int | None = None, **settings
+) -> tuple[int, float]:
     """ristic_wall_corridor's target along the wall, the controller on the truth (no
     tracker): (bumps, distance to the target at the end)."""
-    sim = Simulation(load_builtin("ristic_wall_corridor"))
-    ctl = FollowController(ControllerSettings(avoid_obstacles=avoid))
+    scenario = load_builtin("ristic_wall_corridor")
+    if seed is not None:
+        scenario = msgspec.structs.replace(scenario, seed=seed)
+    sim = Simulation(scenario)
+    ctl = FollowController(ControllerSettings(avoid_obstacles=avoid, **settings))
     period = round(1e9 / sim.scenario.laser.rate_hz)
     t = 0
     while t < seconds * 1e9:
@@ -126,6 +132,47 @@ def test_closed_loop_along_a_wall_the_guard_keeps_the_base_off_it_and_with_its_t
     bumps, dist = _follow(avoid=False)
     assert bumps >= 1 and dist > 3.0  # the thesis rule alone: stuck on the wall, left behind
     bumps, dist = _follow(avoid=True)
+    assert bumps == 0 and dist < 2.0
+
+
+def corridor_mouth() -> np.ndarray:
+    """A corridor's mouth seen from a base 0.09 m inside its right wall's line, the corner
+    0.3 m ahead-right (ristic_wall_corridor, seed 1, where the base stood 5 s): the wall
+    before the mouth to the right, the corridor's right wall ahead from the corner on."""
+    return np.vstack([line(0.29, -3.0, 0.29, -0.09), line(0.29, -0.09, 5.0, -0.09)])
+
+
+def test_stopped_at_a_corridor_s_mouth_the_base_turns_to_the_free_heading_then_drives():
+    walls = corridor_mouth()
+    target = (3.0, 0.1)
+    # without the escape: every forward arc closes in on the corner, so the base stands
+    assert guard().apply(0.6, 0.0, walls, target) == (0.0, 0.0, "avoid_stop")
+    g = guard(escape_m=0.3)
+    v, w, why = g.apply(0.6, 0.0, walls, target)
+    assert (why, v) == ("avoid_escape", 0.0) and w > 0.0  # turns left, on the spot
+    # facing the heading it turned to: drives along it, slow enough to stop within 0.3 m,
+    # the run keeping the body clear of the corner
+    free = g.headings[g.free_headings(walls)]
+    phi = float(free[np.argmin(np.abs(free - math.atan2(target[1], target[0])))])
+    c, s_ = math.cos(phi), math.sin(phi)
+    turned = walls @ np.array([[c, -s_], [s_, c]])  # the points in the turned base's frame
+    v, w, why = g.apply(0.6, 0.0, turned, (target[0] * c + target[1] * s_, 0.0))
+    assert why == "avoid_escape" and 0.0 < v <= g.speed_for(0.3) and w == 0.0
+    run = np.column_stack([np.linspace(0.0, 0.3, 31), np.zeros(31)])
+    d = np.hypot(run[:, None, 0] - turned[None, :, 0], run[:, None, 1] - turned[None, :, 1])
+    assert d.min() >= 0.25
+    # no target known (lost): no escape, it stands; nothing free towards the target either
+    assert g.apply(0.6, 0.0, walls, None)[2] == "avoid_stop"
+    ring = 0.27 * np.column_stack([np.cos(np.linspace(-2, 2, 40)), np.sin(np.linspace(-2, 2, 40))])
+    assert g.apply(0.6, 0.0, ring, (3.0, 0.0)) == (0.0, 0.0, "avoid_stop")
+
+
+def test_closed_loop_at_the_corridor_s_mouth_the_escape_takes_the_base_in():
+    """ristic_wall_corridor seed 1, 30 s, the controller on the truth: without the escape
+    the base stands at the mouth and the target walks away; with it, it follows inside."""
+    bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.0)
+    assert bumps == 0 and dist > 4.0
+    bumps, dist = _follow(True, 30.0, seed=1)
     assert bumps == 0 and dist < 2.0
 
 
