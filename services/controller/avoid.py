@@ -224,19 +224,19 @@ class ObstacleGuard:
 
     def free_headings(self, points: np.ndarray) -> np.ndarray:
         """Of ``headings``, those along which a straight run of escape_m keeps the body
-        ``escape_clear_m`` clear of every point."""
+        ``escape_clear_m`` clear of every point (or, when it is nearer already, comes no
+        nearer)."""
         d_run = self.escape_m
-        k = max(1, math.ceil(d_run / self.step))
-        s = np.linspace(d_run / k, d_run, k)
-        x = np.cos(self.headings)[:, None] * s[None, :]
-        y = np.sin(self.headings)[:, None] * s[None, :]
-        pts = points[np.hypot(points[:, 0], points[:, 1]) <= d_run + self.radius + self.step]
+        pts = points[np.hypot(points[:, 0], points[:, 1]) <= d_run + self.escape_clear]
         if pts.shape[0] == 0:
             return np.ones(self.headings.shape, dtype=bool)
-        dx = x[:, :, None] - pts[None, None, :, 0]
-        dy = y[:, :, None] - pts[None, None, :, 1]
-        d = np.sqrt(dx * dx + dy * dy).min(axis=2)
-        return ~(d < self.escape_clear).any(axis=1)
+        ux, uy = np.cos(self.headings)[:, None], np.sin(self.headings)[:, None]
+        # each point's distance to each straight run (a segment from the base, d_run long)
+        t = np.clip(ux * pts[None, :, 0] + uy * pts[None, :, 1], 0.0, d_run)  # (H, N)
+        d = np.hypot(pts[None, :, 0] - t * ux, pts[None, :, 1] - t * uy)
+        # already nearer than escape_clear_m: no closing in further (as for the arcs)
+        start = float(np.hypot(pts[:, 0], pts[:, 1]).min())
+        return ~(d < min(self.escape_clear, start - 1e-3)).any(axis=1)
 
     def _escape(
         self, v: float, points: np.ndarray, target_xy: tuple[float, float]

@@ -3,8 +3,9 @@
 Median over repeats of one ``FollowController.on_target`` with a 720-beam 270 deg scan,
 target 2.5 m ahead at full speed, for: the thesis's rule alone (guard off), the guard with
 nothing in reach (a room 6 m round), beside a wall (0.4 m to the right: the own arc is
-checked and stands), and a pillar ahead (every turn candidate is checked). Also the scan's
-conversion to points (done once per scan in the node).
+checked and stands), a pillar ahead (every turn candidate is checked), and a corridor's
+mouth with its corner 0.3 m ahead-right (every turn blocked: the escape's headings are
+checked too). Also the scan's conversion to points (done once per scan in the node).
 
     python -m followbot.services.controller.bench
 """
@@ -37,6 +38,14 @@ def _ranges(case: str) -> np.ndarray:
         d = 0.9 * np.cos(b) - np.sqrt(np.maximum(0.15**2 - (0.9 * np.sin(b)) ** 2, 0.0))
         hit = (0.9 * np.abs(np.sin(b))) < 0.15
         r[np.abs(a) < 0.25] = np.where(hit, d, 6.0)
+    if case == "corner":  # the wall x = 0.29 (y < -0.09), then y = -0.09 (x > 0.29)
+        c, s = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_side = np.where(s < -1e-6, -0.09 / s, np.inf)
+            t_side = np.where(t_side * c >= 0.29, t_side, np.inf)
+            t_front = np.where(c > 1e-6, 0.29 / c, np.inf)
+            t_front = np.where(t_front * s <= -0.09, t_front, np.inf)
+        r = np.minimum(r, np.minimum(t_side, t_front))
     return r
 
 
@@ -64,7 +73,7 @@ def main() -> None:
     rows = []
     rule = FollowController(ControllerSettings(avoid_obstacles=False))
     rows.append(("thesis rule alone", _median_us(lambda: rule.on_target(target, 0.12))))
-    for case in ("room", "wall", "pillar"):
+    for case in ("room", "wall", "pillar", "corner"):
         pts = scan_points(_scan(case))
         ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
         reason = ctl.on_target(target, 0.12, pts).reason
