@@ -33,7 +33,8 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   heading and no more than ``escape_slack`` further from the target's bearing: the base
   drives on at the speed that stops within ``escape_m``. Otherwise it turns on the spot
   towards that heading. The next command starts from the new pose as before: the rule's own
-  arc first, then the turns, and the escape only when those are stopped again.
+  arc first, then the turns, and the escape only when those are stopped again. (The
+  controller starts an escape only once the base has stood ``avoid_escape_after_s``.)
 
 * Someone crossing between the robot and its target is waited for, not gone round: while
   what blocks the arc includes something on the line to the target (within ``between_m`` of
@@ -183,12 +184,14 @@ class ObstacleGuard:
         target_xy: tuple[float, float] | None,
         may_swerve: bool = True,
         previous: np.ndarray | None = None,
+        may_escape: bool = True,
     ) -> tuple[float, float, str | None]:
         """(v, w, reason) for the command (v, w) and the scan's base-frame ``points``;
         reason None: unchanged. ``may_swerve`` False: something on the line to the target
         is waited for (reason ``avoid_wait``) rather than gone round; ``previous``: the scan
         before, moved into this scan's frame -- then only something that moved is waited
-        for (``wait_moving_only``)."""
+        for (``wait_moving_only``); ``may_escape`` False: stopped, it stands (the controller
+        lets the escape start only after avoid_escape_after_s)."""
         if v <= 0.0 or points.shape[0] == 0:
             return v, w, None
         length = self.reach_m(v)
@@ -218,7 +221,7 @@ class ObstacleGuard:
             best = cand[np.argmin(np.abs(self.turns[cand] - w))]
             return v, float(self.turns[best]), "avoid_turn"
         out = self._slow(v, w, own, "avoid_slow")
-        if out[2] == "avoid_stop" and self.escape_m > 0.0 and target_xy is not None:
+        if out[2] == "avoid_stop" and may_escape and self.escape_m > 0.0 and target_xy is not None:
             return self._escape(v, seen, target_xy) or out
         return out
 

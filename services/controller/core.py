@@ -107,6 +107,11 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     """Stopped short with the target known, the base turns to the free heading nearest the
     target and drives this far along it (avoid.py, reason avoid_escape; 0: off, it stands
     there, as before the eighteenth session)."""
+    avoid_escape_after_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """The escape waits until the base has stood this long (reason avoid_stop) with the target
+    known: stopped for a moment beside a box it is gone round as before; standing for good at
+    a corridor's mouth it is not (the eighteenth session: escaping at once turned the base
+    back and forth beside livingston_box_occlusion's box until it touched it)."""
     avoid_ignore_target_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """Returns within this of the target's estimate are the target's legs, not obstacles
     (the rule stops 1.2 m short of them anyway)."""
@@ -149,6 +154,7 @@ class FollowController:
         self._waited_s = 0.0  # avoid_wait_s: how long the base has waited so far
         self._previous: np.ndarray | None = None  # avoid_wait_moving_only: the scan before
         self._escaping = False  # the last command was an escape (avoid_escape_m)
+        self._stood_s = 0.0  # avoid_escape_after_s: how long the guard has stopped the base
         self.guard = (
             ObstacleGuard(
                 body_radius_m=s.body_radius_m,
@@ -225,11 +231,18 @@ class FollowController:
                 before = None
                 if self._previous is not None and math.isfinite(dt_s):
                     before = moved_into_frame(self._previous, self.v, self.w, max(dt_s, 0.0))
-                v, w, why = self.guard.apply(v, w, obstacles, xy, may_swerve=may, previous=before)
+                escape = self._escaping or self._stood_s >= s.avoid_escape_after_s
+                v, w, why = self.guard.apply(
+                    v, w, obstacles, xy, may_swerve=may, previous=before, may_escape=escape
+                )
                 reason = why or reason
         if obstacles is not None:
             self._previous = obstacles
         self._escaping = reason == "avoid_escape"
+        if reason == "avoid_stop" and target.status in ("tracking", "coasting"):
+            self._stood_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
+        elif not self._escaping:
+            self._stood_s = 0.0
         if reason == "avoid_wait":
             self._waited_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
         elif reason != "avoid_turn":

@@ -142,6 +142,17 @@ def corridor_mouth() -> np.ndarray:
     return np.vstack([line(0.29, -3.0, 0.29, -0.09), line(0.29, -0.09, 5.0, -0.09)])
 
 
+def test_the_controller_lets_the_escape_start_only_after_standing_a_while():
+    ctl = FollowController(ControllerSettings(avoid_escape_after_s=1.0, avoid_wait_s=0.0))
+    t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.1)
+    reasons = [ctl.on_target(t, 0.12, corridor_mouth()).reason for _ in range(12)]
+    first = reasons.index("avoid_escape")
+    assert set(reasons[:first]) == {"avoid_stop"} and first == 9  # 1.0 s / 0.12 s, rounded up
+    assert set(reasons[first:]) == {"avoid_escape"}  # and it keeps escaping
+    lost = TrackState(stamp_ns=0, status="lost")
+    assert ctl.on_target(lost, 0.12, corridor_mouth()).reason == "lost"
+
+
 def test_stopped_at_a_corridor_s_mouth_the_base_turns_to_the_free_heading_then_drives():
     walls = corridor_mouth()
     target = (3.0, 0.1)
@@ -169,11 +180,12 @@ def test_stopped_at_a_corridor_s_mouth_the_base_turns_to_the_free_heading_then_d
 
 def test_closed_loop_at_the_corridor_s_mouth_the_escape_takes_the_base_in():
     """ristic_wall_corridor seed 1, 30 s, the controller on the truth: without the escape
-    the base stands at the mouth and the target walks away; with it, it follows inside."""
+    the base stands at the mouth and the target walks away (5.5 m ahead); with it, after
+    standing 1 s, the base goes in after them (2.8 m)."""
     bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.0)
-    assert bumps == 0 and dist > 4.0
+    assert bumps == 0 and dist > 5.0
     bumps, dist = _follow(True, 30.0, seed=1)
-    assert bumps == 0 and dist < 2.0
+    assert bumps == 0 and dist < 3.5
 
 
 def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
