@@ -143,7 +143,7 @@ def corridor_mouth() -> np.ndarray:
 
 
 def test_the_controller_lets_the_escape_start_only_after_standing_a_while():
-    ctl = FollowController(ControllerSettings(avoid_escape_after_s=1.0, avoid_wait_s=0.0))
+    ctl = FollowController(ControllerSettings(avoid_escape_m=0.3, avoid_escape_after_s=1.0, avoid_wait_s=0.0))
     t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.1)
     reasons = [ctl.on_target(t, 0.12, corridor_mouth()).reason for _ in range(12)]
     first = reasons.index("avoid_escape")
@@ -184,7 +184,7 @@ def test_closed_loop_at_the_corridor_s_mouth_the_escape_takes_the_base_in():
     standing 1 s, the base goes in after them (2.8 m)."""
     bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.0)
     assert bumps == 0 and dist > 5.0
-    bumps, dist = _follow(True, 30.0, seed=1)
+    bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.3)
     assert bumps == 0 and dist < 3.5
 
 
