@@ -143,7 +143,9 @@ def corridor_mouth() -> np.ndarray:
 
 
 def test_the_controller_lets_the_escape_start_only_after_standing_a_while():
-    ctl = FollowController(ControllerSettings(avoid_escape_m=0.3, avoid_escape_after_s=1.0, avoid_wait_s=0.0))
+    ctl = FollowController(
+        ControllerSettings(avoid_escape_m=0.3, avoid_escape_after_s=1.0, avoid_wait_s=0.0)
+    )
     t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.1)
     reasons = [ctl.on_target(t, 0.12, corridor_mouth()).reason for _ in range(12)]
     first = reasons.index("avoid_escape")
