@@ -1917,3 +1917,28 @@ def test_a_passer_by_0_38_m_from_the_hidden_target_is_not_taken_by_its_track(
     assert target.track_id == tid
     assert (target.status == "tracking" and moved > 0.15) == takes_passer_by
     assert (target.status == "coasting" and moved < 0.1) == (not takes_passer_by)
+
+
+@pytest.mark.parametrize("out_of_view", [20.0, None])
+def test_look_out_of_view_deg_looks_at_a_walker_near_the_point_the_camera_there_does_not_show(
+    out_of_view,
+):
+    """look_out_of_view_deg: past look_max_s the camera looks at a walker within
+    look_wide_gate_m of where the lost target should be (about (2, 2.5), bearing 50 deg) whose
+    bearing is ~25 deg from it -- out of the view of the camera pointed there -- and not at a
+    walker the camera pointed there shows (bearing 50 deg). Off: at neither."""
+    looked = {}
+    for name, start in (("out of view", (2.9, 1.2)), ("in view", (1.5, 1.8))):
+        trk = following_at_two(
+            look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45,
+            look_out_of_view_deg=out_of_view, laser_reacquire_m=0.0,
+        )  # fmt: skip
+        target, k = _walk_then_hide(trk, 20)
+        looks = []
+        for j in range(k, k + 10):  # walking at 0.33 m/s
+            still_robot(trk, j * SCAN_NS)
+            target, _ = trk.step(cands(j * SCAN_NS, (start[0], start[1] + 0.04 * (j - k))))
+            looks.append(target.look_track_id)
+        assert target.status == "lost"
+        looked[name] = max(looks) >= 0
+    assert looked == {"out of view": out_of_view is not None, "in view": False}
