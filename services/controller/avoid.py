@@ -60,7 +60,15 @@ from followbot.geometry import transform_points
 from followbot.schemas import LaserScan
 from followbot.services.laser_legs.core import beam_geometry, valid_mask
 
-__all__ = ["MOVED_M", "MOVED_SHARE", "ObstacleGuard", "moved_into_frame", "scan_points"]
+__all__ = [
+    "MOVED_M",
+    "MOVED_SHARE",
+    "ObstacleGuard",
+    "moved_into_frame",
+    "outside_view",
+    "scan_points",
+    "scan_view",
+]
 
 MOVED_M = 0.03
 """wait_moving_only: a return this far from every return of the scan before has moved."""
@@ -77,6 +85,26 @@ def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.
     else:
         dx, dy = v * dt_s, 0.0
     return transform_points(points, (0.0, 0.0, 0.0), (dx, dy, th))
+
+
+def scan_view(scan: LaserScan, mount_x_m: float = 0.0) -> tuple[float, float, float]:
+    """(mount_x_m, first bearing, last bearing) of ``scan``'s beams, in the laser frame: the
+    part of the base's surroundings this scan covers (:func:`outside_view`)."""
+    first = float(scan.angle_min_rad)
+    last = first + float(scan.angle_increment_rad) * max(len(scan.ranges) - 1, 0)
+    return mount_x_m, min(first, last), max(first, last)
+
+
+def outside_view(points: np.ndarray, view: tuple[float, float, float]) -> np.ndarray:
+    """Boolean mask of the (N, 2) base-frame ``points`` a scan of ``view`` (:func:`scan_view`)
+    does not cover: their bearing from the laser lies outside its beams."""
+    mount_x, lo, hi = view
+    if hi - lo >= 2.0 * math.pi - 1e-9:
+        return np.zeros(points.shape[0], dtype=bool)
+    b = np.arctan2(points[:, 1], points[:, 0] - mount_x)
+    mid = 0.5 * (lo + hi)
+    off = np.abs(np.angle(np.exp(1j * (b - mid))))
+    return off > 0.5 * (hi - lo)
 
 
 def scan_points(scan: LaserScan, mount_x_m: float = 0.0) -> np.ndarray:
@@ -156,25 +184,95 @@ class ObstacleGuard:
         y = np.where(straight[:, None], 0.0, (1.0 - np.cos(ks)) / safe)
         return x, y, s
 
-    def free_lengths(self, v: float, turns: np.ndarray, points: np.ndarray, length: float):
-        """Free length (m, at most ``length``) along each arc (v, w) for w in ``turns``."""
+    def free_lengths(
+        self,
+        v: float,
+        turns: np.ndarray,
+        points: np.ndarray,
+        length: float,
+        radius: float | None = None,
+        remembered: np.ndarray | None = None,
+    ):
+        """Free length (m, at most ``length``) along each arc (v, w) for w in ``turns``, for a
+        disc of ``radius`` (default: the body and the margin); ``remembered``: mask of the
+        points from earlier scans (:meth:`thresholds`)."""
+        radius = self.radius if radius is None else radius
         free = np.full(turns.shape, length)
         if points.shape[0] == 0 or v <= 0.0:
             return free
         x, y, s = self._arcs(v, turns, length)
         dx = x[:, :, None] - points[None, None, :, 0]
         dy = y[:, :, None] - points[None, None, :, 1]
-        d = np.sqrt(dx * dx + dy * dy).min(axis=2)  # (C, K)
-        start = float(np.hypot(points[:, 0], points[:, 1]).min())
-        hit = d < min(self.radius, start - 1e-3)
+        thr = self.thresholds(points, radius, remembered, self.escape_clear)
+        hit = (dx * dx + dy * dy < (thr * thr)[None, None, :]).any(axis=2)  # (C, K)
         first = np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
         return np.where(first < 0, length, np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0))
+
+    @staticmethod
+    def thresholds(
+        points: np.ndarray,
+        radius: float,
+        remembered: np.ndarray | None = None,
+        remembered_radius: float | None = None,
+    ) -> np.ndarray:
+        """(N,) how near each point a path may bring the base's centre: ``radius``, or, when
+        the base is nearer than that already, no nearer than it is (for the scan's returns,
+        as near as the nearest of them is -- the base beside a wall may drive along it).
+        ``remembered`` returns (earlier scans', out of the laser's view) keep the body off
+        them, not the margin -- ``remembered_radius`` (default ``radius``), or each no nearer
+        than itself is: they are for not touching what the laser no longer sees (a door jamb
+        beside the base), and are no excuse to come nearer the others."""
+        r = np.hypot(points[:, 0], points[:, 1])
+        scan = np.ones(r.shape, dtype=bool) if remembered is None else ~remembered
+        start = float(r[scan].min()) if scan.any() else math.inf
+        thr = np.full(r.shape, min(radius, start - 1e-3))
+        if remembered is not None:
+            near = radius if remembered_radius is None else min(radius, remembered_radius)
+            thr[remembered] = np.minimum(near, r[remembered] - 1e-3)
+        return thr
+
+    def _reachable(
+        self,
+        points: np.ndarray,
+        remembered: np.ndarray | None,
+        target_xy: tuple[float, float] | None,
+        length: float,
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
+        """The points that are not the target's legs (and their ``remembered`` mask), and of
+        those the ones the disc can reach along an arc of ``length``."""
+        keep = np.ones(points.shape[0], dtype=bool)
+        if target_xy is not None and self.ignore > 0.0:
+            keep = np.hypot(points[:, 0] - target_xy[0], points[:, 1] - target_xy[1]) > self.ignore
+        seen, seen_mem = points[keep], None if remembered is None else remembered[keep]
+        near = np.hypot(seen[:, 0], seen[:, 1]) <= length + self.radius + self.step
+        return seen, seen_mem, seen[near], None if seen_mem is None else seen_mem[near]
 
     def progress(self, v: float, turns: np.ndarray, length: float, target_xy) -> np.ndarray:
         """How much nearer the target each arc's end lies than the base does now (m)."""
         x, y, _ = self._arcs(v, turns, length)
         tx, ty = target_xy
         return math.hypot(tx, ty) - np.hypot(tx - x[:, -1], ty - y[:, -1])
+
+    def blocked(
+        self,
+        v: float,
+        w: float,
+        points: np.ndarray,
+        target_xy: tuple[float, float] | None,
+        remembered: np.ndarray | None = None,
+    ) -> bool:
+        """The arc (v, w) -- the command the base will execute, after the limits -- brings
+        the body within escape_clear_m of a return within its reach, or nearer when it is
+        nearer already (the check :meth:`apply` makes of the goal's arc, without the margin:
+        a contact, not comfort; returns near the target are its legs)."""
+        if v <= 0.0 or points.shape[0] == 0:
+            return False
+        length = self.reach_m(v)
+        _, _, pts, mem = self._reachable(points, remembered, target_xy, length)
+        if pts.shape[0] == 0:
+            return False
+        free = self.free_lengths(v, np.array([w]), pts, length, self.escape_clear, mem)
+        return float(free[0]) < length
 
     def apply(
         self,
@@ -185,31 +283,28 @@ class ObstacleGuard:
         may_swerve: bool = True,
         previous: np.ndarray | None = None,
         may_escape: bool = True,
+        remembered: np.ndarray | None = None,
     ) -> tuple[float, float, str | None]:
         """(v, w, reason) for the command (v, w) and the scan's base-frame ``points``;
         reason None: unchanged. ``may_swerve`` False: something on the line to the target
         is waited for (reason ``avoid_wait``) rather than gone round; ``previous``: the scan
         before, moved into this scan's frame -- then only something that moved is waited
         for (``wait_moving_only``); ``may_escape`` False: stopped, it stands (the controller
-        lets the escape start only after avoid_escape_after_s)."""
+        lets the escape start only after avoid_escape_after_s); ``remembered``: mask of the
+        points that are earlier scans' returns the scan no longer covers (:meth:`thresholds`)."""
         if v <= 0.0 or points.shape[0] == 0:
             return v, w, None
         length = self.reach_m(v)
-        pts = points
-        if target_xy is not None and self.ignore > 0.0:
-            far = np.hypot(pts[:, 0] - target_xy[0], pts[:, 1] - target_xy[1]) > self.ignore
-            pts = pts[far]
-        seen = pts
         # only what the disc can reach along any arc of this length
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= length + self.radius + self.step]
+        seen, seen_mem, pts, mem = self._reachable(points, remembered, target_xy, length)
         if pts.shape[0] == 0:
             return v, w, None
-        own = float(self.free_lengths(v, np.array([w]), pts, length)[0])
+        own = float(self.free_lengths(v, np.array([w]), pts, length, remembered=mem)[0])
         if own >= length:
             return v, w, None
         if not may_swerve and target_xy is not None and self._between(pts, target_xy, previous):
             return self._slow(v, w, own, "avoid_wait")
-        free = self.free_lengths(v, self.turns, pts, length)
+        free = self.free_lengths(v, self.turns, pts, length, remembered=mem)
         ok = free >= length
         if target_xy is not None:  # a way round must still lead towards the target
             p0 = float(self.progress(v, np.array([w]), length, target_xy)[0])
@@ -222,15 +317,16 @@ class ObstacleGuard:
             return v, float(self.turns[best]), "avoid_turn"
         out = self._slow(v, w, own, "avoid_slow")
         if out[2] == "avoid_stop" and may_escape and self.escape_m > 0.0 and target_xy is not None:
-            return self._escape(v, seen, target_xy) or out
+            return self._escape(v, seen, target_xy, seen_mem) or out
         return out
 
-    def free_headings(self, points: np.ndarray) -> np.ndarray:
+    def free_headings(self, points: np.ndarray, remembered: np.ndarray | None = None) -> np.ndarray:
         """Of ``headings``, those along which a straight run of escape_m keeps the body
         ``escape_clear_m`` clear of every point (or, when it is nearer already, comes no
         nearer)."""
         d_run = self.escape_m
-        pts = points[np.hypot(points[:, 0], points[:, 1]) <= d_run + self.escape_clear]
+        near = np.hypot(points[:, 0], points[:, 1]) <= d_run + self.escape_clear
+        pts, mem = points[near], None if remembered is None else remembered[near]
         if pts.shape[0] == 0:
             return np.ones(self.headings.shape, dtype=bool)
         ux, uy = np.cos(self.headings)[:, None], np.sin(self.headings)[:, None]
@@ -238,17 +334,21 @@ class ObstacleGuard:
         t = np.clip(ux * pts[None, :, 0] + uy * pts[None, :, 1], 0.0, d_run)  # (H, N)
         d = np.hypot(pts[None, :, 0] - t * ux, pts[None, :, 1] - t * uy)
         # already nearer than escape_clear_m: no closing in further (as for the arcs)
-        start = float(np.hypot(pts[:, 0], pts[:, 1]).min())
-        return ~(d < min(self.escape_clear, start - 1e-3)).any(axis=1)
+        thr = self.thresholds(pts, self.escape_clear, mem, self.escape_clear)
+        return ~(d < thr[None, :]).any(axis=1)
 
     def _escape(
-        self, v: float, points: np.ndarray, target_xy: tuple[float, float]
+        self,
+        v: float,
+        points: np.ndarray,
+        target_xy: tuple[float, float],
+        remembered: np.ndarray | None = None,
     ) -> tuple[float, float, str] | None:
         """The escape of the module doc: (v, w, "avoid_escape"), or None (no free heading
         within 90 deg of the target's bearing)."""
         bearing = math.atan2(target_xy[1], target_xy[0])
         off = np.abs(np.angle(np.exp(1j * (self.headings - bearing))))
-        ok = self.free_headings(points) & (off <= math.pi / 2)
+        ok = self.free_headings(points, remembered) & (off <= math.pi / 2)
         if not ok.any():
             return None
         cand = np.where(ok)[0]

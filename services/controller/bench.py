@@ -20,7 +20,7 @@ import numpy as np
 
 from followbot.schemas import LaserScan, TrackState
 
-from .avoid import scan_points
+from .avoid import scan_points, scan_view
 from .core import ControllerSettings, FollowController
 
 BEAMS = 720
@@ -74,11 +74,20 @@ def main() -> None:
     rule = FollowController(ControllerSettings(avoid_obstacles=False))
     rows.append(("thesis rule alone", _median_us(lambda: rule.on_target(target, 0.12))))
     for case in ("room", "wall", "pillar", "corner"):
-        pts = scan_points(_scan(case))
+        scan = _scan(case)
+        pts, view = scan_points(scan), scan_view(scan)
         ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
-        reason = ctl.on_target(target, 0.12, pts).reason
-        us = _median_us(lambda c=ctl, p=pts: c.on_target(target, 0.12, p))
+        reason = ctl.on_target(target, 0.12, pts, view).reason
+        us = _median_us(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
         rows.append((f"guard, {case} ({reason})", us))
+    for case in ("wall", "corner"):  # with 3 s of remembered returns (off by default)
+        scan = _scan(case)
+        pts, view = scan_points(scan), scan_view(scan)
+        ctl = FollowController(ControllerSettings(avoid_wait_s=0.0, avoid_memory_s=3.0))
+        for _ in range(30):  # fill the memory (the base drives on, the scan stays: a smear)
+            reason = ctl.on_target(target, 0.12, pts, view).reason
+        us = _median_us(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
+        rows.append((f"guard + avoid_memory_s 3, {case} ({reason})", us))
     room = _scan("room")
     rows.append(("scan -> points", _median_us(lambda: scan_points(room))))
     print(f"controller, one command ({BEAMS}-beam scan), median of 300:")

@@ -21,7 +21,7 @@ from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import with_node_settings
 
-from .avoid import scan_points
+from .avoid import scan_points, scan_view
 from .core import Command, ControllerSettings, FollowController
 
 __all__ = ["ControllerNodeSettings", "main", "setup"]
@@ -102,7 +102,9 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
             dt = 0.0  # repeated or older stamp: answer it, change nothing
         else:
             dt = settings.nominal_dt_s
-        c = ctl.on_target(t, dt, obstacles_for(t.stamp_ns) if ctl.guard is not None else None)
+        scan = obstacles_for(t.stamp_ns) if ctl.guard is not None else None
+        pts, view = (None, None) if scan is None else scan
+        c = ctl.on_target(t, dt, pts, view)
         st["last_target"] = now
         st["last_stamp"] = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
         st["watchdog_out"] = False
@@ -111,7 +113,7 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
     def on_scan(scan: LaserScan) -> None:
         pts = scan_points(scan, settings.laser_mount_x_m)
         scans = st["scans"]
-        scans[scan.stamp_ns] = pts
+        scans[scan.stamp_ns] = (pts, scan_view(scan, settings.laser_mount_x_m))
         while len(scans) > 8:
             del scans[min(scans)]
         pending = st["pending"]

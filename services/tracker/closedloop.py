@@ -32,7 +32,7 @@ from followbot.schemas import (
     Verification,
     VerifiedCandidate,
 )
-from followbot.services.controller.avoid import scan_points
+from followbot.services.controller.avoid import scan_points, scan_view
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.laser_legs.detectors import make_detector
 from followbot.services.sim.scenario import Scenario, load_builtin
@@ -162,10 +162,11 @@ def run(
                     trk.add_verification(_oracle(cands, truth, fov))
                 if ctl is not None:
                     dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
-                    pts = None
+                    pts = view = None
                     if ctl.guard is not None:  # the controller's obstacle guard sees the scan
                         pts = scan_points(scan, sc.laser.mount_x_m)
-                    cmd = ctl.on_target(state, dt, pts)
+                        view = scan_view(scan, sc.laser.mount_x_m)
+                    cmd = ctl.on_target(state, dt, pts, view)
                     sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
                     sim.command_pan(cmd.pan_rad)
                 if drive is not None:
