@@ -254,7 +254,8 @@ class FollowController:
         keep = self.settings.avoid_memory_s
         dt = max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
         if keep <= 0.0 or view is None:
-            self._memory = (np.empty((0, 2)), np.empty(0))
+            if self._memory[0].shape[0]:  # forgotten (nothing to allocate when it is off)
+                self._memory = (np.empty((0, 2)), np.empty(0))
             return obstacles, None
         pts, age = self._memory
         if dt > 0.0 and pts.shape[0]:

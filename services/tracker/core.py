@@ -1324,6 +1324,8 @@ class Tracker:
         if tid >= 0 and self.tracks[tid].misses <= s.look_keep_misses:
             return
         dwelling = tid < 0 and last is not None and since and stamp - since <= s.look_dwell_s * _NS
+        # look_out_of_view_deg: where the camera looks when it looks at nobody (once per scan)
+        point = self._search_point() if last is not None and s.look_out_of_view_deg else None
 
         def eligible_here(t: Track) -> bool:
             if last is None:
@@ -1332,8 +1334,8 @@ class Tracker:
             # should be (there the camera looks at the point itself, as without the setting,
             # and with look_near_walkers at whoever walks near it)
             if self._inside(last, t):
-                return (s.look_near_walkers or self._out_of_point_view(t)) and self._walking(
-                    t.id, s.look_moving_mps
+                return (s.look_near_walkers or self._out_of_point_view(t, point)) and (
+                    self._walking(t.id, s.look_moving_mps)
                 )
             return t.born_ns > self._lost_ns
 
@@ -1785,12 +1787,11 @@ class Tracker:
                 where = edge  # hidden there: where it comes out of hiding
         return where
 
-    def _out_of_point_view(self, t: Track) -> bool:
+    def _out_of_point_view(self, t: Track, where: np.ndarray | None) -> bool:
         """look_out_of_view_deg: track ``t`` lies more than that off the camera's bearing to
-        the search point (the camera looking there does not show it)."""
+        ``where``, the search point (the camera looking there does not show it)."""
         half = self.settings.look_out_of_view_deg
-        where = self._search_point() if half is not None else None
-        if where is None:
+        if half is None or where is None:
             return False
         off = math.remainder(
             math.atan2(float(t.position[1]), float(t.position[0]))

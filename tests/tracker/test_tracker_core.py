@@ -699,6 +699,23 @@ def _walk_then_hide(trk, scans_hidden):
     return target, 16 + scans_hidden
 
 
+def _looks_past_look_max_s(start, step_m, **settings):
+    """_walk_then_hide for 20 scans with the look gate of 1 s and look_wide_max_distance,
+    then 10 scans of a walker from ``start`` moving ``step_m`` a scan along +y: (the last
+    target state, the look_track_id of each of those scans)."""
+    trk = following_at_two(
+        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, laser_reacquire_m=0.0,
+        **settings,
+    )  # fmt: skip
+    target, k = _walk_then_hide(trk, 20)
+    looks = []
+    for j in range(k, k + 10):
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, (start[0], start[1] + step_m * (j - k))))
+        looks.append(target.look_track_id)
+    return target, looks
+
+
 def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
     """look_gate_m: after the loss the camera looks where the target should be by now (moved
     on at its walking velocity), and vision re-takes only someone near there; after
@@ -872,16 +889,8 @@ def test_look_near_walkers_looks_at_a_walker_near_the_point_and_a_stander_needs_
     look_wide_gate_m of where the lost target should be (about (2, 2.3)) but at another
     bearing, not only at the point; someone standing there (a door frame's track) is re-taken
     only on a close match."""
-    trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45,
-        look_near_walkers=near_walkers, laser_reacquire_m=0.0,
-    )  # fmt: skip
-    target, k = _walk_then_hide(trk, 20)
-    looks = []
-    for j in range(k, k + 10):  # a walker ~1.2 m from the point, ~20 deg from it
-        still_robot(trk, j * SCAN_NS)
-        target, _ = trk.step(cands(j * SCAN_NS, (2.8, 1.3 + 0.06 * (j - k))))
-        looks.append(target.look_track_id)
+    # a walker ~1.2 m from the point, ~20 deg from it
+    target, looks = _looks_past_look_max_s((2.8, 1.3), 0.06, look_near_walkers=near_walkers)
     assert target.status == "lost"
     assert (max(looks[3:]) >= 0) == near_walkers
     trk = following_at_two(
@@ -1929,16 +1938,8 @@ def test_look_out_of_view_deg_looks_at_a_walker_near_the_point_the_camera_there_
     walker the camera pointed there shows (bearing 50 deg). Off: at neither."""
     looked = {}
     for name, start in (("out of view", (2.9, 1.2)), ("in view", (1.5, 1.8))):
-        trk = following_at_two(
-            look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45,
-            look_out_of_view_deg=out_of_view, laser_reacquire_m=0.0,
-        )  # fmt: skip
-        target, k = _walk_then_hide(trk, 20)
-        looks = []
-        for j in range(k, k + 10):  # walking at 0.33 m/s
-            still_robot(trk, j * SCAN_NS)
-            target, _ = trk.step(cands(j * SCAN_NS, (start[0], start[1] + 0.04 * (j - k))))
-            looks.append(target.look_track_id)
+        # walking at 0.33 m/s
+        target, looks = _looks_past_look_max_s(start, 0.04, look_out_of_view_deg=out_of_view)
         assert target.status == "lost"
         looked[name] = max(looks) >= 0
     assert looked == {"out of view": out_of_view is not None, "in view": False}
