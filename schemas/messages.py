@@ -333,6 +333,11 @@ class PersonCandidates(Message, tag="person_candidates", kw_only=True):
     horizon: Horizon | None = None
     """The scan's nearest returns by bearing (laser detectors; None: not known). Lets the
     tracker keep a person hidden behind something nearer (tracker ``occlusion_max_s``)."""
+    reach_m: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    """How far from the laser the detector can find anyone (metres): its range clip (the
+    thesis's 3.5 m, 4.3.1) or the scan's maximum range, whichever is nearer (laser detectors;
+    None: not known). Lets the tracker look for a target that walked out of reach where it
+    would come back into it (tracker ``look_within_reach``)."""
 
     def __post_init__(self) -> None:
         for c in self.candidates:

@@ -50,6 +50,7 @@ __all__ = [
     "cluster_by_jump",
     "cluster_min",
     "cluster_sum",
+    "detector_reach",
     "empty_candidates",
     "gate",
     "gate_xy",
@@ -679,6 +680,18 @@ def _horizon_bins(n: int, inc: float, width: float) -> tuple[int, np.ndarray, np
     idx = np.minimum(((np.arange(n) + 0.5) * (inc / width)).astype(np.intp), bins - 1)
     first = np.flatnonzero(np.concatenate(([True], idx[1:] != idx[:-1])))
     return bins, first, idx[first]
+
+
+def detector_reach(detector: object, scan: LaserScan) -> float | None:
+    """PersonCandidates.reach_m of ``detector`` on ``scan``: its settings' clip_range_m (also
+    through a wrapper's ``inner`` detector) or the scan's range_max_m, whichever is nearer;
+    None when neither is a positive finite range."""
+    while not hasattr(detector, "settings") and hasattr(detector, "inner"):
+        detector = detector.inner
+    clip = getattr(getattr(detector, "settings", None), "clip_range_m", None)
+    reach = [float(r) for r in (clip, scan.range_max_m) if r is not None]
+    reach = [r for r in reach if math.isfinite(r) and r > 0.0]
+    return min(reach) if reach else None
 
 
 def empty_candidates(scan: LaserScan, detector: str) -> PersonCandidates:

@@ -26,7 +26,7 @@ from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError
 
-from .core import LegDetector, empty_candidates, horizon
+from .core import LegDetector, detector_reach, empty_candidates, horizon
 from .detectors import REGISTRY, make_detector
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
@@ -177,11 +177,13 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             node.log.exception("horizon of scan %d failed; candidates sent without it", scan.seq)
             counts["horizon_errors"] += 1
             seen = None
+        reach = detector_reach(detector, scan)
         try:
             result = detector.detect(scan, prediction)
         except Exception:
             # rule 2: one output per scan even when the detector fails; the error is counted
-            out.put(msgspec.structs.replace(empty_candidates(scan, detector.name), horizon=seen))
+            empty = empty_candidates(scan, detector.name)
+            out.put(msgspec.structs.replace(empty, horizon=seen, reach_m=reach))
             raise
         if lost_detector is not None:  # every scan, so its history is whole (settings)
             try:
@@ -192,8 +194,9 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
                 lost_result = None
             if lost_result is not None and predictor.lost(scan):
                 result = lost_result
+                reach = detector_reach(lost_detector, scan)
                 counts["lost_scans"] += 1
-        out.put(result if seen is None else msgspec.structs.replace(result, horizon=seen))
+        out.put(msgspec.structs.replace(result, horizon=seen, reach_m=reach))
 
     node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
     if follows_target:

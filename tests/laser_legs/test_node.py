@@ -183,7 +183,7 @@ def test_a_failing_detector_still_answers_the_scan(monkeypatch):
     monkeypatch.setattr(ClusterLegDetector, "detect", lambda self, s, p=None: boom(s, p))
     h.put("sensors/scan", two_people(7 * MS))
     assert [m.stamp_ns for m in h.out] == [7 * MS]
-    assert h.out[0].candidates == []
+    assert h.out[0].candidates == [] and h.out[0].reach_m == 3.5
     assert h.node.health().errors == 1
 
 
@@ -226,6 +226,9 @@ def test_detector_settings_while_lost_apply_only_while_the_tracker_reports_a_los
         assert len(h.out[-1].candidates) == found, status
         assert off.out[-1].candidates == []
     assert h.out[-1].candidates[0].x_m == pytest.approx(3.8, abs=0.1)
+    # the reach each scan's detector had: 5 m while lost, the thesis's 3.5 m clip otherwise
+    assert [m.reach_m for m in h.out] == [3.5, 5.0, 3.5, 3.5, 5.0]
+    assert {m.reach_m for m in off.out} == {3.5}
     h.node.run_timer("notes")
     assert "lost_scans=2" in h.node.notes and "lost_detector_errors=0" in h.node.notes
     with pytest.raises(SettingsError, match=r"detector_settings_while_lost.*unknown field `foo`"):
@@ -370,6 +373,18 @@ def test_the_candidates_carry_the_scans_horizon_unless_switched_off():
     off = Harness(horizon_bin_deg=None)
     off.put("sensors/scan", two_people(5 * MS))
     assert off.out[-1].horizon is None
+
+
+def test_the_candidates_carry_the_detector_s_reach():
+    """reach_m: the detector's range clip or the scan's maximum range, whichever is nearer;
+    through the robot-body filter's wrapper; also on a failing detector's empty answer."""
+    cases = [({}, 3.5), ({"detector_settings": {"clip_range_m": None}}, 30.0),
+             ({"detector": "iav"}, 30.0), ({"self_filter": None}, 3.5),
+             ({"detector_settings": {"clip_range_m": 40.0}}, 30.0)]  # fmt: skip
+    for settings, reach in cases:
+        h = Harness(**settings)
+        h.put("sensors/scan", two_people(7 * MS))  # range_max_m 30
+        assert h.out[-1].reach_m == reach, settings
 
 
 def test_a_failing_horizon_still_sends_the_candidates(monkeypatch, caplog):
