@@ -50,7 +50,7 @@ __all__ = [
     "cluster_by_jump",
     "cluster_min",
     "cluster_sum",
-    "detector_reach",
+    "detector_clip_m",
     "empty_candidates",
     "gate",
     "gate_xy",
@@ -60,6 +60,7 @@ __all__ = [
     "pair_legs",
     "paired_candidates",
     "prepare",
+    "scan_reach_m",
     "valid_mask",
     "wrap_angle",
 ]
@@ -682,14 +683,21 @@ def _horizon_bins(n: int, inc: float, width: float) -> tuple[int, np.ndarray, np
     return bins, first, idx[first]
 
 
-def detector_reach(detector: object, scan: LaserScan) -> float | None:
-    """PersonCandidates.reach_m of ``detector`` on ``scan``: its settings' clip_range_m (also
-    through a wrapper's ``inner`` detector) or the scan's range_max_m, whichever is nearer;
-    None when neither is a positive finite range."""
+def detector_clip_m(detector: object) -> float | None:
+    """The range beyond which ``detector`` finds no one: its settings' clip_range_m, also
+    through a wrapper's ``inner`` detector (None: it clips nothing). Fixed for a detector's
+    life, so asked once, not per scan."""
     while not hasattr(detector, "settings") and hasattr(detector, "inner"):
         detector = detector.inner
     clip = getattr(getattr(detector, "settings", None), "clip_range_m", None)
-    reach = [float(r) for r in (clip, scan.range_max_m) if r is not None]
+    return None if clip is None else float(clip)
+
+
+def scan_reach_m(clip_m: float | None, scan: LaserScan) -> float | None:
+    """PersonCandidates.reach_m on ``scan`` of a detector clipping at ``clip_m``
+    (:func:`detector_clip_m`): the clip or the scan's range_max_m, whichever is nearer; None
+    when neither is a positive finite range."""
+    reach = [r for r in (clip_m, float(scan.range_max_m)) if r is not None]
     reach = [r for r in reach if math.isfinite(r) and r > 0.0]
     return min(reach) if reach else None
 

@@ -26,7 +26,7 @@ from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError
 
-from .core import LegDetector, detector_reach, empty_candidates, horizon
+from .core import LegDetector, detector_clip_m, empty_candidates, horizon, scan_reach_m
 from .detectors import REGISTRY, make_detector
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
@@ -114,6 +114,9 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     lost_detector = None
     if settings.detector_settings_while_lost is not None:
         lost_detector = build_detector(settings, while_lost=True)
+    # reach_m: the clip of each detector (fixed), met with each scan's range_max_m
+    clip_m = detector_clip_m(detector)
+    lost_clip_m = None if lost_detector is None else detector_clip_m(lost_detector)
     follows_target = settings.use_target_prediction or lost_detector is not None
     out = node.publisher("perception/candidates")
     predictor = TargetPredictor(
@@ -177,7 +180,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             node.log.exception("horizon of scan %d failed; candidates sent without it", scan.seq)
             counts["horizon_errors"] += 1
             seen = None
-        reach = detector_reach(detector, scan)
+        reach = scan_reach_m(clip_m, scan)
         try:
             result = detector.detect(scan, prediction)
         except Exception:
@@ -194,7 +197,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
                 lost_result = None
             if lost_result is not None and predictor.lost(scan):
                 result = lost_result
-                reach = detector_reach(lost_detector, scan)
+                reach = scan_reach_m(lost_clip_m, scan)
                 counts["lost_scans"] += 1
         out.put(msgspec.structs.replace(result, horizon=seen, reach_m=reach))
 
