@@ -74,6 +74,9 @@ MOVED_M = 0.03
 """wait_moving_only: a return this far from every return of the scan before has moved."""
 MOVED_SHARE = 0.1
 """... and something on the line moved when this share of its returns did."""
+ONWARD_M = 1.0
+"""escape_goal(onward=True): how far on from the escape's end the way towards the target
+must be free."""
 
 
 def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.ndarray:
@@ -324,18 +327,133 @@ class ObstacleGuard:
         """Of ``headings``, those along which a straight run of escape_m keeps the body
         ``escape_clear_m`` clear of every point (or, when it is nearer already, comes no
         nearer)."""
-        d_run = self.escape_m
+        return self._runs_free(points, self.headings, self.escape_m, remembered)
+
+    def _runs_free(
+        self,
+        points: np.ndarray,
+        headings: np.ndarray,
+        d_run: float,
+        remembered: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Of ``headings``, those along which a straight run of ``d_run`` from the base keeps
+        the body escape_clear_m clear of every point (:meth:`free_headings`)."""
         near = np.hypot(points[:, 0], points[:, 1]) <= d_run + self.escape_clear
         pts, mem = points[near], None if remembered is None else remembered[near]
         if pts.shape[0] == 0:
-            return np.ones(self.headings.shape, dtype=bool)
-        ux, uy = np.cos(self.headings)[:, None], np.sin(self.headings)[:, None]
+            return np.ones(headings.shape, dtype=bool)
+        ux, uy = np.cos(headings)[:, None], np.sin(headings)[:, None]
         # each point's distance to each straight run (a segment from the base, d_run long)
         t = np.clip(ux * pts[None, :, 0] + uy * pts[None, :, 1], 0.0, d_run)  # (H, N)
         d = np.hypot(pts[None, :, 0] - t * ux, pts[None, :, 1] - t * uy)
         # already nearer than escape_clear_m: no closing in further (as for the arcs)
         thr = self.thresholds(pts, self.escape_clear, mem, self.escape_clear)
         return ~(d < thr[None, :]).any(axis=1)
+
+    def escape_goal(
+        self,
+        points: np.ndarray,
+        target_xy: tuple[float, float],
+        remembered: np.ndarray | None = None,
+        onward: bool = False,
+        keep_in_view: tuple[float, float] | None = None,
+    ) -> tuple[float, float] | None:
+        """The escape's end point in the base frame, escape_m along the free heading nearest
+        the target's bearing (straight ahead when that is free and within escape_slack of
+        it), or None (no free heading within 90 deg of the target's bearing). Returns within
+        ignore_near_target_m of the target are its legs. ``onward``: first the shortest run
+        (escape_m, 1.5 escape_m, 2 escape_m), then the heading nearest the target's bearing,
+        whose end leaves the straight way on towards the target free for the body and the
+        margin (up to ONWARD_M, short of its legs) -- the point past the corner, not merely
+        away from it; none such: as without. ``keep_in_view`` (lo, hi): only headings that
+        leave the target's bearing within (lo, hi) of the base's heading once it faces them
+        (the laser's view; laser frame taken as the base's)."""
+        keep = np.hypot(points[:, 0] - target_xy[0], points[:, 1] - target_xy[1]) > self.ignore
+        points = points[keep]
+        remembered = None if remembered is None else remembered[keep]
+        bearing = math.atan2(target_xy[1], target_xy[0])
+        off = np.abs(np.angle(np.exp(1j * (self.headings - bearing))))
+        toward = off <= math.pi / 2
+        if keep_in_view is not None:
+            rel = np.angle(np.exp(1j * (bearing - self.headings)))
+            toward &= (rel >= keep_in_view[0]) & (rel <= keep_in_view[1])
+        if onward:
+            for k in (1.0, 1.5, 2.0):
+                d_run = k * self.escape_m
+                ok = self._runs_free(points, self.headings, d_run, remembered) & toward
+                if not ok.any():
+                    continue
+                cand = np.where(ok)[0]
+                cand = cand[np.argsort(off[cand], kind="stable")]
+                ends = d_run * np.column_stack(
+                    [np.cos(self.headings[cand]), np.sin(self.headings[cand])]
+                )
+                clear = self._onward_free(points, ends, target_xy, remembered)
+                if clear.any():
+                    end = ends[int(np.argmax(clear))]
+                    return float(end[0]), float(end[1])
+        ok = self.free_headings(points, remembered) & toward
+        if not ok.any():
+            return None
+        cand = np.where(ok)[0]
+        best = cand[np.argmin(off[cand])]
+        ahead = int(np.argmin(np.abs(self.headings)))
+        phi = 0.0
+        if not (ok[ahead] and off[ahead] <= off[best] + self.escape_slack):
+            phi = float(self.headings[best])
+        return self.escape_m * math.cos(phi), self.escape_m * math.sin(phi)
+
+    def _onward_free(
+        self,
+        points: np.ndarray,
+        ends: np.ndarray,
+        target_xy: tuple[float, float],
+        remembered: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """(E,) for each end point (E, 2): the straight way from it towards the target, up
+        to ONWARD_M and short of the target's legs (ignore_near_target_m), keeps the body and
+        the margin off every point (remembered ones: the body and escape_clear_m)."""
+        to = np.asarray(target_xy, dtype=float)[None, :] - ends  # (E, 2)
+        dist = np.hypot(to[:, 0], to[:, 1])
+        run = np.clip(np.minimum(dist - self.ignore, ONWARD_M), 0.0, None)
+        u = to / np.maximum(dist, 1e-9)[:, None]
+        if points.shape[0] == 0:
+            return np.ones(ends.shape[0], dtype=bool)
+        rel = points[None, :, :] - ends[:, None, :]  # (E, N, 2)
+        t = np.clip((rel * u[:, None, :]).sum(axis=2), 0.0, run[:, None])
+        d = np.hypot(rel[:, :, 0] - t * u[:, None, 0], rel[:, :, 1] - t * u[:, None, 1])
+        thr = np.full(points.shape[0], self.radius)
+        if remembered is not None:
+            thr[remembered] = self.escape_clear
+        return ~(d < thr[None, :]).any(axis=1)
+
+    def toward_goal(
+        self,
+        v: float,
+        goal: tuple[float, float],
+        points: np.ndarray,
+        remembered: np.ndarray | None = None,
+        reached_m: float = 0.03,
+        aligned_rad: float = math.radians(5.0),
+    ) -> tuple[float, float, str] | None:
+        """One step of the escape to ``goal`` (base frame): turn on the spot until it lies
+        within ``aligned_rad`` of ahead, then drive there (at most ``v``, at the speed that
+        stops at the goal, steering onto it) -- (v, w, "avoid_escape"); None when it is
+        within ``reached_m`` or the straight run there is no longer free."""
+        gx, gy = goal
+        dist = math.hypot(gx, gy)
+        if dist <= reached_m:
+            return None
+        phi = math.atan2(gy, gx)
+        if abs(phi) > aligned_rad:
+            w = min(self.max_turn, 4.0 * abs(phi) / self.horizon)
+            return 0.0, math.copysign(w, phi), "avoid_escape"
+        if points.shape[0] and not self._runs_free(points, np.array([phi]), dist, remembered)[0]:
+            return None
+        # the escape's own speed (what stops within escape_m), braking to stop at the goal
+        speed = min(v, self.speed_for(self.escape_m), math.sqrt(2.0 * self.decel * dist))
+        # pure pursuit onto the goal: curvature 2 sin(phi) / dist
+        return speed, speed * 2.0 * math.sin(phi) / dist, "avoid_escape"
 
     def _escape(
         self,
@@ -344,21 +462,12 @@ class ObstacleGuard:
         target_xy: tuple[float, float],
         remembered: np.ndarray | None = None,
     ) -> tuple[float, float, str] | None:
-        """The escape of the module doc: (v, w, "avoid_escape"), or None (no free heading
-        within 90 deg of the target's bearing)."""
-        bearing = math.atan2(target_xy[1], target_xy[0])
-        off = np.abs(np.angle(np.exp(1j * (self.headings - bearing))))
-        ok = self.free_headings(points, remembered) & (off <= math.pi / 2)
-        if not ok.any():
+        """The escape of the module doc, recomputed from this pose: (v, w, "avoid_escape"),
+        or None (no free heading within 90 deg of the target's bearing)."""
+        goal = self.escape_goal(points, target_xy, remembered)
+        if goal is None:
             return None
-        cand = np.where(ok)[0]
-        best = cand[np.argmin(off[cand])]
-        ahead = int(np.argmin(np.abs(self.headings)))
-        if ok[ahead] and off[ahead] <= off[best] + self.escape_slack:
-            return min(v, self.speed_for(self.escape_m)), 0.0, "avoid_escape"
-        phi = float(self.headings[best])
-        w = min(self.max_turn, 4.0 * abs(phi) / self.horizon)
-        return 0.0, math.copysign(w, phi), "avoid_escape"
+        return self.toward_goal(v, goal, points, remembered, aligned_rad=0.0)
 
     def _slow(self, v: float, w: float, own: float, reason: str) -> tuple[float, float, str]:
         """The command's own arc, at the speed that stops within its free length ``own``."""

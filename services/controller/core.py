@@ -121,12 +121,28 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     (tracked >= 98 % 67 -> 64, RMSE <= 0.08 m 73 -> 70); with avoid_escape_m 0.3 as well, no
     contact and room_corridor clean, but 65 / 72 (livingston_box_occlusion seed 6 tracked
     1.00 -> 0.90, the office's seed 3 0.89 -> 0.64). 0: the last scan only."""
-    avoid_escape_m: Annotated[float, msgspec.Meta(ge=0)] = 0.0
-    """Stopped short with the target known, the base turns to the free heading nearest the
-    target and drives this far along it (avoid.py, reason avoid_escape; 0: off, it stands
-    there). Off by default: with 0.3 over the 76-run sweep (eighteenth session, docs/tracker.md)
-    ristic_wall_corridor seed 1 no longer stands at the corridor's mouth, but runs with a
-    contact rose 1 -> 6 and tracked >= 98 % fell 67 -> 66."""
+    avoid_escape_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
+    """Stopped short with the target tracked, the base turns to a free heading towards the
+    target and drives at least this far along it (avoid.py, reason avoid_escape; 0: off, it
+    stands there). Default since the twenty-first session, with avoid_escape_commit: over the
+    76-run sweep (docs/tracker.md) RMSE <= 0.08 m 74 -> 75, ristic_wall_corridor seed 1 no
+    longer stands at the corridor's mouth (tracked 0.85 -> 1.00), no contact. Without the
+    commitment (eighteenth and twentieth sessions) it stayed off: runs with a contact 1 -> 6,
+    then 0 -> 4 (livingston_box_occlusion's box)."""
+    avoid_escape_commit: bool = True
+    """With avoid_escape_m: an escape, once begun, is driven to its end before the rule has
+    the base again -- turn on the spot until it faces the end point, then drive there (kept
+    in the base frame as the base moves; given up when the run there is no longer free, the
+    target is lost or near enough to stop for, or after avoid_escape_for_s). The end is past
+    the corner: the shortest run (1, 1.5, 2 x avoid_escape_m) and then the heading nearest
+    the target's whose end leaves the straight way on towards the target free for the body
+    and the margin (avoid.ObstacleGuard.escape_goal, onward), the target kept 10 deg inside
+    the laser's view. False: the escape is chosen afresh each step from where the base
+    stands, the nearest free heading 0.3 m on, so the rule's own arc, free again a few
+    centimetres on, turned the base back into the corner it was escaping
+    (ristic_wall_corridor seed 1, twentieth session: 45 deg left, a few cm, back, stopped)."""
+    avoid_escape_for_s: Annotated[float, msgspec.Meta(gt=0)] = 4.0
+    """avoid_escape_commit: an escape not at its end after this long is given up."""
     avoid_escape_after_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """The escape waits until the base has stood this long (reason avoid_stop) with the target
     known: stopped for a moment beside a box it is gone round as before; standing for good at
@@ -147,6 +163,12 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     (the rule stops 1.2 m short of them anyway)."""
     laser_mount_x_m: float = 0.0
     """The laser's position ahead of the base origin."""
+
+
+ESCAPE_VIEW_MARGIN_RAD = math.radians(10.0)
+"""avoid_escape_commit: the escape's heading keeps the target this far inside the laser's
+field of view (livingston_box_occlusion's +-50 deg laser: an escape 60 deg off the target
+turned it out of view and it was lost)."""
 
 
 class Command(msgspec.Struct, frozen=True):
@@ -185,6 +207,9 @@ class FollowController:
         self._previous: np.ndarray | None = None  # avoid_wait_moving_only: the scan before
         self._escaping = False  # the last command was an escape (avoid_escape_m)
         self._stood_s = 0.0  # avoid_escape_after_s: how long the guard has stopped the base
+        # avoid_escape_commit: the escape's end point in the base frame, and its age
+        self._escape_goal: tuple[float, float] | None = None
+        self._escape_age_s = 0.0
         # avoid_memory_s: earlier scans' returns in the current base frame, and their ages
         self._memory: tuple[np.ndarray, np.ndarray] = (np.empty((0, 2)), np.empty(0))
         self.guard = (
@@ -301,6 +326,15 @@ class FollowController:
         elif target.status != "coasting":
             self._goal = (0.0, 0.0, self.pan)
         s = self.settings
+        dt = max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
+        if self._escape_goal is not None:  # moved by the last command, like the memory
+            gx, gy = moved_into_frame(np.array([self._escape_goal]), self.v, self.w, dt)[0]
+            self._escape_goal, self._escape_age_s = (float(gx), float(gy)), self._escape_age_s + dt
+            if self._escape_age_s > s.avoid_escape_for_s or target.status not in (
+                "tracking",
+                "coasting",
+            ):
+                self._escape_goal = None
         if self.guard is not None and v > 0.0:
             if obstacles is None:
                 v, reason = 0.0, "no_scan"
@@ -314,11 +348,40 @@ class FollowController:
                 before = None
                 if self._previous is not None and math.isfinite(dt_s):
                     before = moved_into_frame(self._previous, self.v, self.w, max(dt_s, 0.0))
-                escape = self._escaping or self._stood_s >= s.avoid_escape_after_s
-                v, w, why = self.guard.apply(
-                    v, w, obstacles, xy, may_swerve=may, previous=before, may_escape=escape,
-                    remembered=memory,
-                )  # fmt: skip
+                # an escape begins only towards a target the laser has now (tracking): a
+                # coasting one is a guess, and turning the base away on a guess turns the
+                # laser and the camera off where it is hidden (bellotto_cluttered_office
+                # seed 3 with the escape: followed 0.55 -> 0.27); one under way goes on
+                escape = self._escaping or (
+                    self._stood_s >= s.avoid_escape_after_s and target.status == "tracking"
+                )
+                step = None
+                if self._escape_goal is not None:  # an escape under way: driven to its end
+                    step = self.guard.toward_goal(v, self._escape_goal, obstacles, memory)
+                    if step is None:
+                        self._escape_goal = None
+                if step is not None:
+                    v, w, why = step
+                else:
+                    v0, w0 = v, w
+                    v, w, why = self.guard.apply(
+                        v, w, obstacles, xy, may_swerve=may, previous=before,
+                        may_escape=escape, remembered=memory,
+                    )  # fmt: skip
+                    if why == "avoid_escape" and s.avoid_escape_commit and xy is not None:
+                        # the end past the corner, with the target kept in the laser's view
+                        keep = None
+                        if view is not None:
+                            keep = (
+                                view[1] + ESCAPE_VIEW_MARGIN_RAD,
+                                view[2] - ESCAPE_VIEW_MARGIN_RAD,
+                            )
+                        goal = self.guard.escape_goal(obstacles, xy, memory, True, keep)
+                        self._escape_goal, self._escape_age_s = goal, 0.0
+                        step = None
+                        if goal is not None:
+                            step = self.guard.toward_goal(v0, goal, obstacles, memory)
+                        v, w, why = step or (0.0, w0, "avoid_stop")
                 reason = why or reason
                 if s.avoid_check_limited and reason != "avoid_escape" and v > 0.0:
                     # the limits bend the arc: from a standstill the base turns at once but
@@ -332,6 +395,8 @@ class FollowController:
         if scan is not None:
             self._previous = scan
         self._escaping = reason == "avoid_escape"
+        if not self._escaping:  # stopped for, lost, no scan ...: the escape is over
+            self._escape_goal = None
         if reason == "avoid_stop" and target.status in ("tracking", "coasting"):
             self._stood_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
         elif not self._escaping:
@@ -341,6 +406,11 @@ class FollowController:
         elif reason != "avoid_turn":
             self._waited_s = 0.0
         return self._limit(v, w, pan, reason, dt_s)
+
+    @property
+    def escape_goal(self) -> tuple[float, float] | None:
+        """avoid_escape_commit: the end point (base frame) of the escape under way, or None."""
+        return self._escape_goal
 
     def stop(self, dt_s: float, reason: str = "watchdog") -> Command:
         """Brake towards zero velocity (the watchdog); the camera holds its angle."""

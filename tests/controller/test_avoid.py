@@ -192,14 +192,79 @@ def test_stopped_at_a_corridor_s_mouth_the_base_turns_to_the_free_heading_then_d
     assert g.apply(0.6, 0.0, ring, (3.0, 0.0)) == (0.0, 0.0, "avoid_stop")
 
 
+def _way_on_clearance(end, target, walls, run_m=1.0) -> float:
+    """Least distance from ``walls`` to the straight way from ``end`` towards ``target``
+    (``run_m`` long): what the rule's own arc needs free after the escape."""
+    end, target = np.asarray(end), np.asarray(target)
+    u = (target - end) / np.linalg.norm(target - end)
+    way = end + np.linspace(0.0, run_m, 101)[:, None] * u
+    return float(np.hypot(*(way[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min())
+
+
+def test_the_escape_ends_past_the_corner_not_merely_beside_it():
+    """The nearest free heading (45 deg left) ends 0.3 m on, still behind the corner: the way
+    on to the target from there closes in on it again, so the rule stops the base once more
+    (ristic_wall_corridor seed 1, twentieth session). ``onward``: the end from which the
+    way on is free for the body and the margin (0.30 m)."""
+    walls, target = corridor_mouth(), (3.0, 0.1)
+    g = guard(escape_m=0.3)
+    near = g.escape_goal(walls, target)
+    past = g.escape_goal(walls, target, onward=True)
+    assert math.atan2(near[1], near[0]) == pytest.approx(math.radians(45.0))
+    assert math.hypot(*near) == pytest.approx(0.3) and math.hypot(*past) >= 0.3 - 1e-9
+    assert _way_on_clearance(near, target, walls) < 0.30 <= _way_on_clearance(past, target, walls)
+    # the run there keeps the body clear too
+    run = np.linspace(0.0, 1.0, 31)[:, None] * np.asarray(past)
+    assert np.hypot(*(run[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min() >= 0.26
+    # nothing past the corner within reach (a wall all round but behind): as without
+    ring = 0.6 * np.column_stack(
+        [np.cos(np.linspace(-1.5, 1.5, 60)), np.sin(np.linspace(-1.5, 1.5, 60))]
+    )
+    assert g.escape_goal(ring, (3.0, 0.0), onward=True) == g.escape_goal(ring, (3.0, 0.0))
+
+
+def test_toward_the_escape_s_end_the_base_turns_first_then_drives_there():
+    g = guard(escape_m=0.3)
+    v, w, why = g.toward_goal(0.75, (0.0, 0.3), np.empty((0, 2)))
+    assert (why, v) == ("avoid_escape", 0.0) and w > 0.0  # 90 deg left: on the spot
+    v, w, why = g.toward_goal(0.75, (0.3, 0.0), np.empty((0, 2)))
+    assert why == "avoid_escape" and v == pytest.approx(g.speed_for(0.3)) and w == 0.0
+    v, w, _ = g.toward_goal(0.75, (0.3, 0.01), np.empty((0, 2)))
+    assert v > 0.0 and w > 0.0  # a little off: steering onto it as it drives
+    assert g.toward_goal(0.75, (0.02, 0.0), np.empty((0, 2))) is None  # there
+    wall = line(0.35, -1.0, 0.35, 1.0)  # something now across the way there: given up
+    assert g.toward_goal(0.75, (0.3, 0.0), wall) is None
+
+
+def test_a_begun_escape_is_driven_on_though_the_way_clears_and_dropped_when_lost():
+    settings = dict(avoid_escape_m=0.3, avoid_escape_after_s=0.0, avoid_wait_s=0.0)
+    t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.1)
+    for commit, then in ((True, "avoid_escape"), (False, "max_speed")):
+        ctl = FollowController(ControllerSettings(avoid_escape_commit=commit, **settings))
+        assert ctl.on_target(t, 0.12, corridor_mouth()).reason == "avoid_escape"
+        assert (ctl.escape_goal is not None) == commit
+        # the next scan shows nothing in the way: committed, the base still escapes first
+        assert ctl.on_target(t, 0.12, np.empty((0, 2))).reason == then
+    lost = TrackState(stamp_ns=0, status="lost")  # lost: it stops, and the escape is over
+    ctl = FollowController(ControllerSettings(**settings))
+    ctl.on_target(t, 0.12, corridor_mouth())
+    assert ctl.on_target(lost, 0.12, corridor_mouth()).reason == "lost"
+    assert (
+        ctl.escape_goal is None and ctl.on_target(t, 0.12, np.empty((0, 2))).reason == "max_speed"
+    )
+
+
 def test_closed_loop_at_the_corridor_s_mouth_the_escape_takes_the_base_in():
     """ristic_wall_corridor seed 1, 30 s, the controller on the truth: without the escape
-    the base stands at the mouth and the target walks away (5.5 m ahead); with it, after
-    standing 1 s, the base goes in after them (2.8 m)."""
+    the base stands at the mouth and the target walks away (5.5 m ahead); escaping afresh
+    each step it gets in late (2.8 m); with the escape driven to its end past the corner
+    (avoid_escape_commit, default) it follows close (1.6 m)."""
     bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.0)
     assert bumps == 0 and dist > 5.0
+    bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.3, avoid_escape_commit=False)
+    assert bumps == 0 and 2.5 < dist < 3.5
     bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.3)
-    assert bumps == 0 and dist < 3.5
+    assert bumps == 0 and dist < 2.0
 
 
 def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
