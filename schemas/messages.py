@@ -506,7 +506,12 @@ class VelocityCommand(Message, tag="velocity_command", kw_only=True):
     linear_mps: Finite
     angular_radps: Finite
     reason: Name = ""
-    """Why: tracking, stop_close, stale, lost, watchdog, ..."""
+    """Why. The thesis rule: ``max_speed`` (> 1.5 m), ``match_speed`` (1.2-1.5 m),
+    ``stop_close`` (< 1.2 m), ``coasting`` (the last goal kept), ``lost`` / ``initialising``
+    (stop). The obstacle guard: ``avoid_turn``, ``avoid_slow``, ``avoid_stop``, ``avoid_wait``,
+    ``avoid_escape``, ``no_scan`` (stop). The safety stops: ``stale``, ``tracker_gone``,
+    ``watchdog``, ``invalid`` (a non-finite command replaced by a stop). docs/tracker.md,
+    Controller."""
 
 
 class PanCommand(Message, tag="pan_command", kw_only=True):
