@@ -35,6 +35,14 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   towards that heading. The next command starts from the new pose as before: the rule's own
   arc first, then the turns, and the escape only when those are stopped again. (The
   controller starts an escape only once the base has stood ``avoid_escape_after_s``.)
+  That is :meth:`ObstacleGuard.apply` alone. The controller's default
+  (``avoid_escape_commit``) plans the escape instead: :meth:`ObstacleGuard.escape_goal` with
+  ``onward`` picks the end point past the corner -- the shortest run (1, 1.5, 2 x
+  ``escape_m``), then the heading nearest the target's, from whose end the straight way on to
+  the target is free for the disc (ONWARD_M, short of the target's legs), the target kept
+  inside the laser's view -- and :meth:`ObstacleGuard.toward_goal` drives there, turning on
+  the spot first, before the rule has the base again. Recomputed each step, the rule's own
+  arc, free again after a few centimetres, turned the base back into the corner.
 
 * Someone crossing between the robot and its target is waited for, not gone round: while
   what blocks the arc includes something on the line to the target (within ``between_m`` of
