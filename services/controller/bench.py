@@ -4,8 +4,10 @@ Median over repeats of one ``FollowController.on_target`` with a 720-beam 270 de
 target 2.5 m ahead at full speed, for: the thesis's rule alone (guard off), the guard with
 nothing in reach (a room 6 m round), beside a wall (0.4 m to the right: the own arc is
 checked and stands), a pillar ahead (every turn candidate is checked), and a corridor's
-mouth with its corner 0.3 m ahead-right (every turn blocked: the escape's headings are
-checked too). Also the scan's conversion to points (done once per scan in the node).
+mouth with its corner 0.3 m ahead-right (every turn blocked; the escape off, the base
+stands). Then the escape there: planning its end past the corner (once, as it begins:
+every heading, up to three run lengths, and the way on from each end) and one step driving
+to it. Also the scan's conversion to points (done once per scan in the node).
 
     python -m followbot.services.controller.bench
 """
@@ -76,10 +78,26 @@ def main() -> None:
     for case in ("room", "wall", "pillar", "corner"):
         scan = _scan(case)
         pts, view = scan_points(scan), scan_view(scan)
-        ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
+        # (the escape off: standing at the corner, every arc and heading is checked each step)
+        ctl = FollowController(ControllerSettings(avoid_wait_s=0.0, avoid_escape_m=0.0))
         reason = ctl.on_target(target, 0.12, pts, view).reason
         us = _median_us(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
         rows.append((f"guard, {case} ({reason})", us))
+    # the escape (default): planning its end past the corner, once, when it begins; then
+    # each step under way (turning towards the end, or driving there with its run checked)
+    scan = _scan("corner")
+    pts, view = scan_points(scan), scan_view(scan)
+    ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
+    xy = (target.x_m, target.y_m)
+    keep = (view[1] + math.radians(10.0), view[2] - math.radians(10.0))
+    plan = ctl.guard.escape_goal  # what the controller calls as the escape begins
+    rows.append(
+        ("escape, planning its end (corner)", _median_us(lambda: plan(pts, xy, None, True, keep)))
+    )
+    goal = plan(pts, xy, None, True, keep)
+    ahead = (math.hypot(*goal), 0.0)  # facing it: the run there is checked
+    toward = ctl.guard.toward_goal
+    rows.append(("escape, one step driving there", _median_us(lambda: toward(0.75, ahead, pts))))
     for case in ("wall", "corner"):  # with 3 s of remembered returns (off by default)
         scan = _scan(case)
         pts, view = scan_points(scan), scan_view(scan)
