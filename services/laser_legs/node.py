@@ -20,8 +20,9 @@ from collections import deque
 from typing import Annotated, Any
 
 import msgspec
+import numpy as np
 
-from followbot.schemas import LaserScan
+from followbot.schemas import LaserScan, PersonCandidates, TrackState
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError
@@ -47,6 +48,13 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     sensors at 3.6-4.6 m, never re-taken). Both detectors see every scan (so a detector that
     keeps a history keeps all of it); the lost one's candidates are published while lost.
     Detection costs twice as much. null: off."""
+    while_lost_new_near_look_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    """With detector_settings_while_lost, beyond the thesis: on a lost scan, a candidate of
+    the lost detector that the ordinary detector did not find too (none of its candidates
+    within 0.1 m) is published only within this of the point the tracker looks at for its
+    target (tracking/target ``look_x_m``/``look_y_m``, base frame, the laser pose applied;
+    none named: not at all). E.g. with ``{edge_slivers: true}``: a leg half hidden beside the
+    pillar the target went behind, not beside everyone else. null: all of them."""
     use_target_prediction: bool = True
     """Criterion 3: gate legs on the tracked target's predicted position (thesis 4.3.2)."""
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
@@ -76,6 +84,44 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
         build_detector(self, check_only=True)
         if self.detector_settings_while_lost is not None:
             build_detector(self, check_only=True, while_lost=True)
+
+
+SAME_CANDIDATE_M = 0.1
+"""while_lost_new_near_look_m: a lost detector's candidate this near one of the ordinary
+detector's is that one."""
+
+
+def only_near_look(
+    lost: PersonCandidates,
+    ordinary: PersonCandidates,
+    target: TrackState | None,
+    laser_pose: tuple[float, float, float],
+    near_m: float,
+) -> PersonCandidates:
+    """``lost`` without its candidates that ``ordinary`` lacks (none of its within
+    SAME_CANDIDATE_M) and that lie farther than ``near_m`` from ``target``'s look point (the
+    laser frame: ``laser_pose`` is the laser's (x, y, yaw) in the base frame; no look point
+    named: every such candidate is dropped)."""
+    seen = np.array([(c.x_m, c.y_m) for c in ordinary.candidates]).reshape(-1, 2)
+    look = None
+    if target is not None and (
+        target.look_track_id >= 0 or (target.look_x_m, target.look_y_m) != (0.0, 0.0)
+    ):
+        lx, ly, yaw = laser_pose
+        dx, dy = target.look_x_m - lx, target.look_y_m - ly
+        c, s = math.cos(yaw), math.sin(yaw)
+        look = (c * dx + s * dy, -s * dx + c * dy)
+    keep = []
+    for cand in lost.candidates:
+        found = seen.shape[0] > 0 and bool(
+            np.min(np.hypot(seen[:, 0] - cand.x_m, seen[:, 1] - cand.y_m)) <= SAME_CANDIDATE_M
+        )
+        near = look is not None and math.hypot(cand.x_m - look[0], cand.y_m - look[1]) <= near_m
+        if found or near:
+            keep.append(cand)
+    if len(keep) == len(lost.candidates):
+        return lost
+    return msgspec.structs.replace(lost, candidates=keep)
 
 
 def build_detector(
@@ -196,6 +242,11 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
                 counts["lost_detector_errors"] += 1
                 lost_result = None
             if lost_result is not None and predictor.lost(scan):
+                if settings.while_lost_new_near_look_m is not None:
+                    lost_result = only_near_look(
+                        lost_result, result, predictor.target, settings.laser_pose_in_base,
+                        settings.while_lost_new_near_look_m,
+                    )  # fmt: skip
                 result = lost_result
                 reach = scan_reach_m(lost_clip_m, scan)
                 counts["lost_scans"] += 1

@@ -399,3 +399,35 @@ def test_a_failing_horizon_still_sends_the_candidates(monkeypatch, caplog):
     assert [len(m.candidates) for m in h.out] == [2]
     assert h.out[0].horizon is None
     assert "horizon of scan" in caplog.text  # logged (and counted in the Health notes)
+
+
+def test_while_lost_new_candidates_go_only_near_the_point_the_tracker_looks_at():
+    """while_lost_new_near_look_m: of the lost detector's candidates, those the ordinary one
+    found too always go; a new one (a half-hidden leg, say) only near the look point."""
+    from followbot.schemas import Candidate
+    from followbot.services.laser_legs.node import only_near_look
+
+    def cand(x, y):
+        return Candidate(x_m=x, y_m=y, range_m=math.hypot(x, y), bearing_rad=math.atan2(y, x))
+
+    ordinary = PersonCandidates(stamp_ns=1, candidates=[cand(2.0, 0.0)])
+    lost = PersonCandidates(
+        stamp_ns=1, candidates=[cand(2.03, 0.02), cand(1.0, -1.0), cand(-1.0, 1.5)]
+    )
+    look = TrackState(stamp_ns=1, status="lost", look_x_m=1.2, look_y_m=-0.8)
+    kept = only_near_look(lost, ordinary, look, (0.0, 0.0, 0.0), 0.5)
+    assert [(c.x_m, c.y_m) for c in kept.candidates] == [(2.03, 0.02), (1.0, -1.0)]
+    # the look point is in the base frame: a laser mounted 0.3 m ahead, turned 90 deg left
+    # sees (1.2, -0.8) at (-0.8, -0.9)
+    turned = only_near_look(lost, ordinary, look, (0.3, 0.0, math.pi / 2), 0.5)
+    assert [(c.x_m, c.y_m) for c in turned.candidates] == [(2.03, 0.02)]
+    lost_near = PersonCandidates(stamp_ns=1, candidates=[cand(-0.8, -1.0)])
+    assert (
+        len(only_near_look(lost_near, ordinary, look, (0.3, 0.0, math.pi / 2), 0.5).candidates) == 1
+    )
+    # no look point named: nothing new goes, what both found still does
+    blind = TrackState(stamp_ns=1, status="lost")
+    assert [
+        (c.x_m, c.y_m) for c in only_near_look(lost, ordinary, blind, (0, 0, 0), 0.5).candidates
+    ] == [(2.03, 0.02)]
+    assert only_near_look(lost, ordinary, None, (0, 0, 0), 0.5).candidates[0].x_m == 2.03
