@@ -347,7 +347,7 @@ class FollowController:
                 may = self._waited_s >= s.avoid_wait_s or self._escaping
                 before = None
                 if self._previous is not None and math.isfinite(dt_s):
-                    before = moved_into_frame(self._previous, self.v, self.w, max(dt_s, 0.0))
+                    before = moved_into_frame(self._previous, self.v, self.w, dt)
                 # an escape begins only towards a target the laser has now (tracking): a
                 # coasting one is a guess, and turning the base away on a guess turns the
                 # laser and the camera off where it is hidden (bellotto_cluttered_office
@@ -363,13 +363,16 @@ class FollowController:
                 if step is not None:
                     v, w, why = step
                 else:
-                    v0, w0 = v, w
+                    v0 = v
+                    plan = s.avoid_escape_commit  # the escape planned here, not step by step
                     v, w, why = self.guard.apply(
                         v, w, obstacles, xy, may_swerve=may, previous=before,
-                        may_escape=escape, remembered=memory,
+                        may_escape=escape and not plan, remembered=memory,
                     )  # fmt: skip
-                    if why == "avoid_escape" and s.avoid_escape_commit and xy is not None:
-                        # the end past the corner, with the target kept in the laser's view
+                    # stopped where the guard would escape (avoid.py): the end past the
+                    # corner, with the target kept in the laser's view
+                    stopped = why == "avoid_stop" and xy is not None
+                    if plan and escape and stopped and self.guard.escape_m > 0.0:
                         keep = None
                         if view is not None:
                             keep = (
@@ -378,10 +381,12 @@ class FollowController:
                             )
                         goal = self.guard.escape_goal(obstacles, xy, memory, True, keep)
                         self._escape_goal, self._escape_age_s = goal, 0.0
-                        step = None
                         if goal is not None:
-                            step = self.guard.toward_goal(v0, goal, obstacles, memory)
-                        v, w, why = step or (0.0, w0, "avoid_stop")
+                            v, w, why = self.guard.toward_goal(v0, goal, obstacles, memory) or (
+                                v,
+                                w,
+                                why,
+                            )
                 reason = why or reason
                 if s.avoid_check_limited and reason != "avoid_escape" and v > 0.0:
                     # the limits bend the arc: from a standstill the base turns at once but
@@ -398,11 +403,11 @@ class FollowController:
         if not self._escaping:  # stopped for, lost, no scan ...: the escape is over
             self._escape_goal = None
         if reason == "avoid_stop" and target.status in ("tracking", "coasting"):
-            self._stood_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
+            self._stood_s += dt
         elif not self._escaping:
             self._stood_s = 0.0
         if reason == "avoid_wait":
-            self._waited_s += max(0.0, dt_s) if math.isfinite(dt_s) else 0.0
+            self._waited_s += dt
         elif reason != "avoid_turn":
             self._waited_s = 0.0
         return self._limit(v, w, pan, reason, dt_s)
