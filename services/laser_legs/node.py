@@ -22,7 +22,7 @@ from typing import Annotated, Any
 import msgspec
 import numpy as np
 
-from followbot.schemas import LaserScan, PersonCandidates, TrackState
+from followbot.schemas import LaserScan, PersonCandidates
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError
@@ -94,23 +94,14 @@ detector's is that one."""
 def only_near_look(
     lost: PersonCandidates,
     ordinary: PersonCandidates,
-    target: TrackState | None,
-    laser_pose: tuple[float, float, float],
+    look: tuple[float, float] | None,
     near_m: float,
 ) -> PersonCandidates:
     """``lost`` without its candidates that ``ordinary`` lacks (none of its within
-    SAME_CANDIDATE_M) and that lie farther than ``near_m`` from ``target``'s look point (the
-    laser frame: ``laser_pose`` is the laser's (x, y, yaw) in the base frame; no look point
-    named: every such candidate is dropped)."""
+    SAME_CANDIDATE_M) and that lie farther than ``near_m`` from ``look``, the point the
+    tracker looks at in the scan's frame (TargetPredictor.look_point; None: every such
+    candidate is dropped)."""
     seen = np.array([(c.x_m, c.y_m) for c in ordinary.candidates]).reshape(-1, 2)
-    look = None
-    if target is not None and (
-        target.look_track_id >= 0 or (target.look_x_m, target.look_y_m) != (0.0, 0.0)
-    ):
-        lx, ly, yaw = laser_pose
-        dx, dy = target.look_x_m - lx, target.look_y_m - ly
-        c, s = math.cos(yaw), math.sin(yaw)
-        look = (c * dx + s * dy, -s * dx + c * dy)
     keep = []
     for cand in lost.candidates:
         found = seen.shape[0] > 0 and bool(
@@ -243,10 +234,9 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
                 lost_result = None
             if lost_result is not None and predictor.lost(scan):
                 if settings.while_lost_new_near_look_m is not None:
-                    lost_result = only_near_look(
-                        lost_result, result, predictor.target, settings.laser_pose_in_base,
-                        settings.while_lost_new_near_look_m,
-                    )  # fmt: skip
+                    look = predictor.look_point(scan)
+                    near = settings.while_lost_new_near_look_m
+                    lost_result = only_near_look(lost_result, result, look, near)
                 result = lost_result
                 reach = scan_reach_m(lost_clip_m, scan)
                 counts["lost_scans"] += 1

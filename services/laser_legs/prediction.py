@@ -130,6 +130,27 @@ class TargetPredictor:
         t = self.target
         return t is not None and t.status == "lost" and self._recent(t, scan)
 
+    def _in_scan_frame(
+        self, t: TrackState, scan: LaserScan, px: float, py: float
+    ) -> tuple[float, float]:
+        """(px, py) of ``t``'s base frame in ``scan``'s laser frame (step 4 of the module
+        doc; unchanged when ``t`` already names the scan's frame)."""
+        if t.frame_id != scan.frame_id or not t.frame_id:
+            lx, ly, lyaw = self.laser_pose
+            c, s = math.cos(lyaw), math.sin(lyaw)
+            dx, dy = px - lx, py - ly
+            px, py = c * dx + s * dy, -s * dx + c * dy
+        return px, py
+
+    def look_point(self, scan: LaserScan) -> tuple[float, float] | None:
+        """Where the newest target's tracker looks for it (TrackState ``look_x_m``/``look_y_m``,
+        when it names a point or a track) in ``scan``'s laser frame, or None. As the tracker
+        says it, without ego-motion (a robot that has lost its target stands)."""
+        t = self.target
+        if t is None or not (t.look_track_id >= 0 or (t.look_x_m, t.look_y_m) != (0.0, 0.0)):
+            return None
+        return self._in_scan_frame(t, scan, t.look_x_m, t.look_y_m)
+
     def predict(self, scan: LaserScan) -> Prediction:
         """The target's predicted (x, y) in ``scan``'s frame, or None (then no gating)."""
         t = self.target
@@ -156,11 +177,7 @@ class TargetPredictor:
             c1, s1 = math.cos(p1[2]), math.sin(p1[2])
             tx, ty = p0[0] - p1[0], p0[1] - p1[1]
             px, py = c * px - s * py + c1 * tx + s1 * ty, s * px + c * py - s1 * tx + c1 * ty
-        if t.frame_id != scan.frame_id or not t.frame_id:
-            lx, ly, lyaw = self.laser_pose
-            c, s = math.cos(lyaw), math.sin(lyaw)
-            dx, dy = px - lx, py - ly
-            px, py = c * dx + s * dy, -s * dx + c * dy
+        px, py = self._in_scan_frame(t, scan, px, py)
         if not (math.isfinite(px) and math.isfinite(py)):
             self.skipped += 1
             return None

@@ -404,7 +404,7 @@ def test_a_failing_horizon_still_sends_the_candidates(monkeypatch, caplog):
 def test_while_lost_new_candidates_go_only_near_the_point_the_tracker_looks_at():
     """while_lost_new_near_look_m: of the lost detector's candidates, those the ordinary one
     found too always go; a new one (a half-hidden leg, say) only near the look point."""
-    from followbot.schemas import Candidate
+    from followbot.schemas import Candidate, LaserScan
     from followbot.services.laser_legs.node import only_near_look
 
     def cand(x, y):
@@ -415,19 +415,23 @@ def test_while_lost_new_candidates_go_only_near_the_point_the_tracker_looks_at()
         stamp_ns=1, candidates=[cand(2.03, 0.02), cand(1.0, -1.0), cand(-1.0, 1.5)]
     )
     look = TrackState(stamp_ns=1, status="lost", look_x_m=1.2, look_y_m=-0.8)
-    kept = only_near_look(lost, ordinary, look, (0.0, 0.0, 0.0), 0.5)
-    assert [(c.x_m, c.y_m) for c in kept.candidates] == [(2.03, 0.02), (1.0, -1.0)]
+    scan = LaserScan.from_ranges([1.0] * 3, stamp_ns=1, angle_min_rad=-0.1, angle_increment_rad=0.1)
+
+    def kept(pose, candidates=lost, target=look):
+        predictor = TargetPredictor(laser_pose=pose)
+        if target is not None:
+            predictor.add_target(target)
+        out = only_near_look(candidates, ordinary, predictor.look_point(scan), 0.5)
+        return [(c.x_m, c.y_m) for c in out.candidates]
+
+    assert kept((0.0, 0.0, 0.0)) == [(2.03, 0.02), (1.0, -1.0)]
     # the look point is in the base frame: a laser mounted 0.3 m ahead, turned 90 deg left
     # sees (1.2, -0.8) at (-0.8, -0.9)
-    turned = only_near_look(lost, ordinary, look, (0.3, 0.0, math.pi / 2), 0.5)
-    assert [(c.x_m, c.y_m) for c in turned.candidates] == [(2.03, 0.02)]
+    turned = (0.3, 0.0, math.pi / 2)
+    assert kept(turned) == [(2.03, 0.02)]
     lost_near = PersonCandidates(stamp_ns=1, candidates=[cand(-0.8, -1.0)])
-    assert (
-        len(only_near_look(lost_near, ordinary, look, (0.3, 0.0, math.pi / 2), 0.5).candidates) == 1
-    )
+    assert len(kept(turned, lost_near)) == 1
     # no look point named: nothing new goes, what both found still does
     blind = TrackState(stamp_ns=1, status="lost")
-    assert [
-        (c.x_m, c.y_m) for c in only_near_look(lost, ordinary, blind, (0, 0, 0), 0.5).candidates
-    ] == [(2.03, 0.02)]
-    assert only_near_look(lost, ordinary, None, (0, 0, 0), 0.5).candidates[0].x_m == 2.03
+    assert kept((0, 0, 0), target=blind) == [(2.03, 0.02)]
+    assert kept((0, 0, 0), target=None)[0][0] == 2.03
