@@ -385,10 +385,13 @@ class ObstacleGuard:
         if keep_in_view is not None:
             rel = np.angle(np.exp(1j * (bearing - self.headings)))
             toward &= (rel >= keep_in_view[0]) & (rel <= keep_in_view[1])
+        free = self.free_headings(points, remembered)  # escape_m runs
         if onward:
             for k in (1.0, 1.5, 2.0):
                 d_run = k * self.escape_m
-                ok = self._runs_free(points, self.headings, d_run, remembered) & toward
+                ok = toward & (
+                    free if k == 1.0 else self._runs_free(points, self.headings, d_run, remembered)
+                )
                 if not ok.any():
                     continue
                 cand = np.where(ok)[0]
@@ -400,7 +403,7 @@ class ObstacleGuard:
                 if clear.any():
                     end = ends[int(np.argmax(clear))]
                     return float(end[0]), float(end[1])
-        ok = self.free_headings(points, remembered) & toward
+        ok = free & toward
         if not ok.any():
             return None
         cand = np.where(ok)[0]

@@ -23,7 +23,7 @@ import numpy as np
 from followbot.schemas import LaserScan, TrackState
 
 from .avoid import scan_points, scan_view
-from .core import ControllerSettings, FollowController
+from .core import ESCAPE_VIEW_MARGIN_RAD, ControllerSettings, FollowController
 
 BEAMS = 720
 FOV = math.radians(270.0)
@@ -89,7 +89,7 @@ def main() -> None:
     pts, view = scan_points(scan), scan_view(scan)
     ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
     xy = (target.x_m, target.y_m)
-    keep = (view[1] + math.radians(10.0), view[2] - math.radians(10.0))
+    keep = (view[1] + ESCAPE_VIEW_MARGIN_RAD, view[2] - ESCAPE_VIEW_MARGIN_RAD)
     plan = ctl.guard.escape_goal  # what the controller calls as the escape begins
     rows.append(
         ("escape, planning its end (corner)", _median_us(lambda: plan(pts, xy, None, True, keep)))
