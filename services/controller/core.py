@@ -81,7 +81,7 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     shift (TrackState.shift_*; zero unless the tracker's lone_leg_output_m is set), as
     laser_legs gates criterion 3 there: refining the report then moves no part of the loop.
     True: the reported position (moved out for lone legs), which changes the robot's path
-    (docs/tracker.md, fifteenth session: 76 runs, crowd_ten seed 6 lost its target)."""
+    (docs/tracker_log.md, fifteenth session: 76 runs, crowd_ten seed 6 lost its target)."""
     avoid_obstacles: bool = True
     """Beyond the thesis: turn, slow or stop a command whose arc would run the base into
     something the laser sees (avoid.py; the node then also subscribes sensors/scan). False:
@@ -99,7 +99,7 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     the target (avoid.py)."""
     avoid_between_m: Annotated[float, msgspec.Meta(ge=0)] = 0.25
     """What lies within this of the line to the target is "on the line" (avoid_wait_s). 0.25
-    with avoid_wait_moving_only since the seventeenth session (0.125 before; docs/tracker.md:
+    with avoid_wait_moving_only since the seventeenth session (0.125 before; docs/tracker_log.md:
     76 runs, switch runs 3 -> 1)."""
     avoid_wait_moving_only: bool = True
     """Wait (avoid_wait_s) only for something on the line that moved since the scan before
@@ -116,16 +116,20 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     current scan alone counts. The thesis's laser sees +-50 deg: turning back towards its
     target a base swings into the box corner or door jamb it no longer sees
     (livingston_box_occlusion with the escape; thesis_5_2_3_room_corridor's own seed, the
-    one contact of the 76 runs). 76 runs with 3 s (nineteenth session, docs/tracker.md): no
+    one contact of the 76 runs). 76 runs with 3 s (nineteenth session, docs/tracker_log.md): no
     contact, but room_corridor's robot then stood for good in its door in 3 of 4 seeds
     (tracked >= 98 % 67 -> 64, RMSE <= 0.08 m 73 -> 70); with avoid_escape_m 0.3 as well, no
     contact and room_corridor clean, but 65 / 72 (livingston_box_occlusion seed 6 tracked
-    1.00 -> 0.90, the office's seed 3 0.89 -> 0.64). 0: the last scan only."""
+    1.00 -> 0.90, the office's seed 3 0.89 -> 0.64). Twenty-second session, with the
+    committed escape: 3 s gives no contact but 72 / 65 (75 / 68 without; livingston's box
+    and room_corridor's door stand the base); the memory only for a last contact check (built
+    and removed) still touched a jamb once -- a remembered return is a noisy laser return
+    moved by the commands, 1-2 cm off the corner -- and lost as much. 0: the last scan only."""
     avoid_escape_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
     """Stopped short with the target tracked, the base turns to a free heading towards the
     target and drives at least this far along it (avoid.py, reason avoid_escape; 0: off, it
     stands there). Default since the twenty-first session, with avoid_escape_commit: over the
-    76-run sweep (docs/tracker.md) RMSE <= 0.08 m 74 -> 75, ristic_wall_corridor seed 1 no
+    76-run sweep (docs/tracker_log.md) RMSE <= 0.08 m 74 -> 75, ristic_wall_corridor seed 1 no
     longer stands at the corridor's mouth (tracked 0.85 -> 1.00), no contact. Without the
     commitment (eighteenth and twentieth sessions) it stayed off: runs with a contact 1 -> 6,
     then 0 -> 4 (livingston_box_occlusion's box)."""

@@ -12,7 +12,7 @@ scan k:
    while it is ``coasting``: the tracker has missed it, so its position is least sure — or it is
    a rollback's old snapshot — and the tracker's own gate grows while it coasts. Gating then
    deleted the target's legs and lost it (ristic_circles: RMSE 0.138 -> 0.097 m, tracked
-   0.86 -> 1.00 of the visible time after this change; docs/tracker.md);
+   0.86 -> 1.00 of the visible time after this change; docs/tracker_log.md);
 2. constant velocity: ``p = (x, y) + (vx, vy) * dt`` in the base frame of the target's stamp
    (the tracker's velocity is the ground velocity expressed in that frame);
 3. ego-motion, when odometry is known at both stamps (poses T0 at t_target, T1 at t_scan):

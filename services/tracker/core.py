@@ -292,7 +292,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     lost) when the laser sees through to where it should be and nobody is there, or when
     someone new appears inside the search gate (occlusion_look). 3 s, ninth session:
     occlusion_pillar tracked >= 0.98 of the visible time on 5 of 6 seeds (none by default),
-    but crowds and the cluttered office lose on some seeds (docs/tracker.md). 0, or
+    but crowds and the cluttered office lose on some seeds (docs/tracker_log.md). 0, or
     candidates without a horizon: every miss counts (the thesis)."""
     occlusion_look: bool = True
     """With occlusion_max_s: once a hidden target is past the thesis's miss budget (where the
@@ -324,7 +324,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     laser_reacquire_min_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.25
     """... and only a track walking at least this fast (its recent velocity): clutter where
     the target vanished stays put (0: any track). Beyond the thesis; 76 closed-loop runs
-    (docs/tracker.md): the cluttered office's 1.2 s on wrong people went to 0."""
+    (docs/tracker_log.md): the cluttered office's 1.2 s on wrong people went to 0."""
     laser_reacquire_min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
     """... and only a track at least this far from the laser: nearer, it is the robot's own
     body or something it drove up to, not a person (a person's centre lies a leg's radius
@@ -334,7 +334,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     laser_reacquire_max_s: Annotated[float, msgspec.Meta(ge=0)] | None = 3.0
     """... and only this long after the loss (None: any time). Beyond the thesis: a walker is
     0.7 m on in under 3 s; later, whoever passes where the target was lost is someone else.
-    76 closed-loop runs (docs/tracker.md): time on wrong people 16.2 -> 8.4 s (crowd_ten
+    76 closed-loop runs (docs/tracker_log.md): time on wrong people 16.2 -> 8.4 s (crowd_ten
     14.2 -> 6.4 s)."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
     """Consecutive verifications preferring another track before the target moves to it."""
@@ -364,13 +364,13 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     threshold by more than this: a target judged around the threshold (door_corner seed 3:
     0.74-0.86 against 0.8, scan after scan) is not dropped on every second look. Default
     since the fifteenth session: of 76 runs 8 change, none of the sweep's counts (door_corner
-    seed 3 tracked 0.54 -> 0.75; RMSE lower in 6 of the other 7; docs/tracker.md). 0: off."""
+    seed 3 tracked 0.54 -> 0.75; RMSE lower in 6 of the other 7; docs/tracker_log.md). 0: off."""
     near_guard_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """... only while the target is surely the one vision last accepted: its track took a
     candidate on every scan since, and no other track came within this distance of it. A
     target that was hidden, or passed someone (or something) on the way, is judged as usual.
     0: near rejections never count, whatever happened (in the cluttered office the robot then
-    followed clutter near it and once a bystander). 76 closed-loop runs (docs/tracker.md):
+    followed clutter near it and once a bystander). 76 closed-loop runs (docs/tracker_log.md):
     ristic_circles tracked 1.00 of the visible time in all 8 seeds (0.97 without), RMSE 0.084
     m (0.095)."""
     front_margin_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.2
@@ -406,7 +406,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     0.74). One G for all: weighing by each track's own gate (tried) made coasting tracks,
     whose gates grow, win candidates from nearer tracks (76 runs: 37 s on wrong people).
     Default since the fourteenth session: of 76 closed-loop runs only crowd_ten's own seed
-    changes (RMSE 0.384 -> 0.077 m, 5.4 -> 0 s on the passer-by; docs/tracker.md). Beyond the
+    changes (RMSE 0.384 -> 0.077 m, 5.4 -> 0 s on the passer-by; docs/tracker_log.md). Beyond the
     thesis, whose nearest neighbour takes one person."""
     split_pair_m: Annotated[float, msgspec.Meta(ge=0)] = 0.4
     """A two-leg candidate whose legs are farther apart than this may be one leg each of two
@@ -427,14 +427,14 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     (~0.2 m) apart, so the centre lies ~0.1 m farther away: in the simulator one-leg
     candidates lie 0.06-0.10 m nearer than the person's centre on average (two-leg ones 0.006
     m), and they made 80 % of ristic_circles' squared error. 0.1 over 60 runs (ninth session,
-    docs/tracker.md): RMSE lower on most scenarios (ristic_circles 0.083 -> 0.062 m), but
+    docs/tracker_log.md): RMSE lower on most scenarios (ristic_circles 0.083 -> 0.062 m), but
     identity switches on two-person scenarios (two_people own seed 0 -> 1, 0.48 s) and 14.3 s
     on wrong people against 5.8 s. 0: the thesis."""
     lone_leg_clear_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """... only for a track with no other track within this distance: near someone, a lone
     leg may be hidden by, or pair with, them, and moving it outwards moved the target onto
     whoever walked behind. (It did not remove those switches: criterion 3 leaves the
-    bystander without a track; docs/tracker.md, ninth session.)"""
+    bystander without a track; docs/tracker_log.md, ninth session.)"""
     lone_leg_output_m: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.1
     """Beyond the thesis: the target's *reported* position takes a leg seen alone for a person
     centred this far beyond it along its bearing (as lone_leg_offset_m), while the filter
@@ -447,11 +447,11 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     so laser_legs gates criterion 3 at the estimate); association, gates, coasting and
     rollbacks use the estimate alone, so whom the target takes is the thesis's decision
     (lone_leg_offset_m moved the filter itself, and moved the target onto whoever walked
-    behind it: docs/tracker.md).
+    behind it: docs/tracker_log.md).
     Particle estimator only (its cloud is what is weighed again; the others report their
     estimate); 0: off. Default 0.1 since the fifteenth session, with the controller following
     the estimate, not the report (controller ``follow_report``): the whole loop then runs
-    as without it and only the report moves -- 76 runs (docs/tracker.md): RMSE <= 0.08 m on
+    as without it and only the report moves -- 76 runs (docs/tracker_log.md): RMSE <= 0.08 m on
     75 (69), e.g. bellotto_cluttered_office 0.088 -> 0.064 m, crowd_ten 0.078 -> 0.046 m,
     hidden_target_bystanders 0.053 -> 0.061 m the one scenario worse. (In the thirteenth
     session, with the robot following the report, its changed paths lost targets.)"""
@@ -482,7 +482,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     first, nearest to where the target was lost (with look_gate_m: to where it should be now)
     first; each in turn until vision has judged it (or look_dwell_s passed), those vision
     rejected look_rejections times are skipped. False: the thesis's camera stays where the
-    target was lost. Default since the seventh session, with look_gate_m (docs/tracker.md):
+    target was lost. Default since the seventh session, with look_gate_m (docs/tracker_log.md):
     84 closed-loop runs, occlusion_pillar re-acquired in 0.0-1.56 s instead of ~21 s."""
     look_dwell_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     look_rejections: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
@@ -491,7 +491,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     to judge). 0.5 before the fifteenth session: in bellotto_cluttered_office the target comes
     back 0.45-0.5 m beside the stopped robot, and the camera waited until it was 0.5 m away
     before turning ~90 deg to it; with look_new_first, 0.3 re-takes it 0.1-1.4 s sooner (of 76
-    runs only the office's change; docs/tracker.md). Also the nearest a newcomer may be to end
+    runs only the office's change; docs/tracker_log.md). Also the nearest a newcomer may be to end
     the search for a hidden target's guess (occlusion_look)."""
     look_moving_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.25
     look_gate_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.5
@@ -524,7 +524,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     the dead-end corridor past 3.5 m and came back 13 s later, accepted by vision at
     0.65-0.74 from 3.3 m on, but 1.9 m from the point 4.9 m away, so re-taken only 5 s later
     on a close match (look_wide_max_distance). Default since the twentieth session: of 76
-    runs only that one changes (tracked 0.75 -> 0.85, docs/tracker.md). Candidates without a
+    runs only that one changes (tracked 0.75 -> 0.85, docs/tracker_log.md). Candidates without a
     reach (recordings from before it, other publishers): as False, the point walks on."""
     look_max_s: Annotated[float, msgspec.Meta(ge=0)] = 4.0
     look_wide_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = 0.45
@@ -538,7 +538,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     look at one point never sees. None: off. 0.45: below every bystander's distance in 30
     closed-loop runs (15 scenarios, own seed and seed 1, the camera looking at everyone while
     lost: lowest 0.468; 54 % of the target's judgements lie at or below it). Default since
-    the tenth session (docs/tracker.md: of 76 runs only the cluttered office's change)."""
+    the tenth session (docs/tracker_log.md: of 76 runs only the cluttered office's change)."""
     look_wide_gate_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
     """Set from two re-appearances looked at before the runs: in ristic_wall_corridor the
     target came back 0.6 m from where it should be (16 s after the loss), in
@@ -548,7 +548,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     turned to while their track has missed at most this many scans in a row (within
     look_dwell_s). 0 (before the fifteenth session): a single missed scan sent it to the next
     person or the point, and a track that flickers (someone half hidden among the shelves)
-    made the camera swing 10 deg to and fro without reaching anyone (docs/tracker.md)."""
+    made the camera swing 10 deg to and fro without reaching anyone (docs/tracker_log.md)."""
     look_confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] | None = None
     """Beyond the thesis, with look_while_lost: how many candidates a new track must have
     taken before the camera turns to it (None: confirm_hits, 2). 1: from its first scan --
@@ -567,7 +567,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     where it was last sent can point at them, not from when it is sent: in the cluttered
     office (with the robot kept off the shelf) the camera, sent 178 deg round to the target
     coming back past the robot, was sent on to someone else after 1 s, still 60 deg short of
-    her (seventeenth session; default since then, docs/tracker.md). None: from when it is
+    her (seventeenth session; default since then, docs/tracker_log.md). None: from when it is
     sent."""
     look_near_walkers: bool = False
     """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
@@ -589,12 +589,12 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     the 1.5 m but 40-100 deg from the point, and walked there 4 s unjudged. With 20 it is
     re-taken after 1.2 s (4.2 s), tracked 0.75 -> 0.81, but followed 0.43 -> 0.33 (its model,
     learnt on a door frame, loses it again); the other 75 of 76 runs do not change
-    (nineteenth session, docs/tracker.md). None: off."""
+    (nineteenth session, docs/tracker_log.md). None: off."""
     look_new_first: bool = True
     """Beyond the thesis, with look_wide_max_distance: a newcomer not yet looked at since the
     loss ends the camera's dwell on where the target should be at once (the dwell is
     between rounds of looking again at the same people). Default since the fifteenth session
-    (with look_min_range_m 0.3, docs/tracker.md): in bellotto_cluttered_office the target
+    (with look_min_range_m 0.3, docs/tracker_log.md): in bellotto_cluttered_office the target
     came back during a dwell and waited up to 1 s for the camera. False: the dwell runs out."""
     look_occluder_edge: bool = True
     """Beyond the thesis, with look_gate_m: when nobody is there to look at and the point where
@@ -602,7 +602,7 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     scan's horizon), the camera looks past the edge of that cover on the side the target was
     walking towards, where it will come out (:func:`occluder_edge`), not at the hidden point
     itself. The gate, and whom vision may re-take, do not change. Default since the
-    fourteenth session (docs/tracker.md): in occlusion_pillar the target goes round the pillar
+    fourteenth session (docs/tracker_log.md): in occlusion_pillar the target goes round the pillar
     while its straight-line prediction stays behind it, and the camera had to turn ~55 deg
     (0.6 s at 90 deg/s) once the laser found it; over 76 runs tracked >= 98 % on 61 (57),
     re-acquired within 1 s 31 of 55 occlusions (28 of 54), nothing else worse than one

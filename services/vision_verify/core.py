@@ -256,7 +256,7 @@ def horizon_covers(
     legs is narrow too, but lies behind them. Each of its returns is widened
     ``half_width_m`` to each side (the body above the leg). Wider runs -- walls, a pillar's
     face, furniture -- say nothing of what stands above them and hide nothing here (widened,
-    they hid a target coming out beside a pillar: 76 closed-loop runs, docs/tracker.md)."""
+    they hid a target coming out beside a pillar: 76 closed-loop runs, docs/tracker_log.md)."""
     r = horizon.ranges.numpy().astype(np.float64)
     n = r.shape[0]
     centre = horizon.angle_min_rad + (np.arange(n) + 0.5) * horizon.increment_rad

@@ -76,7 +76,7 @@ class AcquireSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     away, on the bearing of the target setting off 1.2 m away, and the model was learnt with
     the edge's position). 76 closed-loop runs: that run is learnt on its target 0.12 s later
     (RMSE 0.231 -> 0.075 m, tracked 0.75 -> 1.00), the other 75 do not change
-    (docs/tracker.md). None: off."""
+    (docs/tracker_log.md). None: off."""
     alone_s: float = 0.5
     crowd_pairs: int = 2
     """The mover must have moved alone: ``crowd_pairs`` or more scan pairs within the last

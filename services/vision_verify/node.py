@@ -96,7 +96,7 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     reported unjudged only when it would be rejected and those returns cover at least this
     share of its columns: a view with someone unreported in front of it is trusted when it
     matches, not when it rejects (the tracker then counts no rejection). Default since the
-    fourteenth session (docs/tracker.md), 76 closed-loop runs: tracked >= 98 % 61 -> 66 (all
+    fourteenth session (docs/tracker_log.md), 76 closed-loop runs: tracked >= 98 % 61 -> 66 (all
     six crowd_ten seeds 1.00), time on wrong people 1.32 -> 0.60 s, never-re-acquired
     occlusions 8 -> 5, two-person runs with a switch 3 -> 2, RMSE <= 0.08 m unchanged (68).
     None: cut the covered columns from the rectangle, as nearer candidates' (min_visible_

@@ -83,7 +83,7 @@ class ParticleSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     plus the 0.13 m a lone leg lies off a person's centre: at 0.4 a passer-by who hid the
     target for a scan 0.38 m from its prediction took its track (side_by_side seed 3,
     crowd_ten seed 2: the only two runs of 76 on a wrong person); 0.35 removed both and
-    changed no count, 0.3 lost crowd_ten seed 6 (docs/tracker.md)."""
+    changed no count, 0.3 lost crowd_ten seed 6 (docs/tracker_log.md)."""
     gate_growth: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """While coasting the gate grows by gate_growth * sigma_v * dT * sqrt(misses), the
     spread the random walk adds to the cloud."""
