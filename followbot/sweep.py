@@ -15,7 +15,12 @@ a run's figures do not depend on the machine's speed; ``--jobs`` runs that many 
 leaves its metrics in ``DIR/runs/SCENARIO__SEED.json``. A run whose file is there already is
 not run again, so an interrupted sweep goes on where it stopped (``--fresh`` runs all again);
 the settings the runs were made with are kept in ``DIR/sweep_settings.json`` and a sweep
-with other settings into the same folder is refused.
+with other settings into the same folder is refused. So is one with other code: the
+settings file also holds a fingerprint of followbot's source (its ``.py`` and scenario
+``.yaml`` files, as installed -- an editable install runs the working tree), and a sweep
+whose code changes while it runs stops at the next finished run, keeping the runs that
+finished before the change and dropping that one (each run starts the stages afresh, so
+runs after an edit would mix versions). Run experiments from a separate clone.
 
 Printed and written (``DIR/sweep.md``, ``DIR/sweep.json``):
 
@@ -43,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import hashlib
 import json
 import math
 import multiprocessing
@@ -50,7 +56,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["HARD", "TWO_PERSON", "aggregate", "grid", "main"]
+__all__ = ["HARD", "TWO_PERSON", "aggregate", "code_fingerprint", "grid", "main"]
 
 #: The four two-person scenarios of thesis 5.2.4 (issue 6: 0 identity switches on each).
 TWO_PERSON = (
@@ -75,6 +81,24 @@ HARD = (
 RMSE_TARGET_M = 0.08
 TRACKED_TARGET = 0.98
 REACQUIRE_TARGET_S = 1.0
+
+
+def code_fingerprint() -> str:
+    """SHA-256 (hex, first 16) of followbot's source as the runs import it: every ``.py`` and
+    ``.yaml`` file under the followbot package's folders, by path relative to them."""
+    import followbot
+    import followbot.schemas
+    import followbot.services
+
+    h = hashlib.sha256()
+    roots = sorted({Path(p).resolve() for m in (followbot, followbot.schemas, followbot.services)
+                    for p in m.__path__})  # fmt: skip
+    for root in roots:
+        for f in sorted(root.rglob("*")):
+            if f.suffix in (".py", ".yaml") and f.is_file() and "__pycache__" not in f.parts:
+                h.update(f"{root.name}/{f.relative_to(root).as_posix()}\0".encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def grid(kind: str, scenarios: list[str]) -> list[tuple[str, int | None]]:
@@ -300,12 +324,17 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.output)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     settings_file = out / "sweep_settings.json"
-    settings = {"set": sorted(args.set)}
+    settings = {"set": sorted(args.set), "code": code_fingerprint()}
     if settings_file.is_file() and not args.fresh:
         before = json.loads(settings_file.read_text())
-        if before != settings:
-            print(f"followbot sweep: {out} holds runs made with {before['set']}, not "
+        if before.get("set") != settings["set"]:
+            print(f"followbot sweep: {out} holds runs made with {before.get('set')}, not "
                   f"{settings['set']}; use another folder or --fresh", file=sys.stderr)  # fmt: skip
+            return 2
+        if before.get("code") != settings["code"]:
+            print(f"followbot sweep: {out} holds runs made with other code (source "
+                  f"fingerprint {before.get('code')}, now {settings['code']}); use another "
+                  "folder or --fresh", file=sys.stderr)  # fmt: skip
             return 2
     settings_file.write_text(json.dumps(settings) + "\n")
 
@@ -318,6 +347,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             todo.append((scenario, seed))
     failures: dict[str, str] = {}
+    changed = ""
     done = len(metrics)
     # spawn, not fork: a forked worker inherits a parent's threads' locks (Zenoh's, a test
     # runner's) in whatever state they were, and can hang on them
@@ -337,11 +367,23 @@ def main(argv: list[str] | None = None) -> int:
                 failures[key] = str(exc)
                 print(f"[{done}/{len(runs)}] {key}: failed: {exc}", file=sys.stderr, flush=True)
                 continue
+            now = code_fingerprint()
+            if now != settings["code"]:
+                for f in futures:
+                    f.cancel()
+                changed = (f"followbot sweep: the code changed while the sweep ran (source "
+                           f"fingerprint {settings['code']} -> {now}); stopped, {key} and the "
+                           f"runs under way dropped, the {len(metrics)} run(s) that finished "
+                           f"before kept in {out / 'runs'}")  # fmt: skip
+                break
             (out / "runs" / f"{key}.json").write_text(json.dumps(m, indent=1) + "\n")
             metrics[key] = m
             print(f"[{done}/{len(runs)}] {key}: rmse {_fmt(m.get('rmse_m'), '.3f')} m, tracked "
                   f"{_fmt(m.get('tracked_visible_share_acquired'), '.2f')}, switches "
                   f"{_fmt(m.get('identity_switches'))}", file=sys.stderr, flush=True)  # fmt: skip
+    if changed:
+        print(changed, file=sys.stderr)
+        return 2
     if not metrics:
         print("followbot sweep: no run finished", file=sys.stderr)
         return 1

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from followbot.sweep import HARD, aggregate, grid, main, report, run_key
+from followbot.sweep import HARD, aggregate, code_fingerprint, grid, main, report, run_key
 
 
 def metric(scenario, rmse=0.05, tracked=1.0, wrong=0.0, switches=0, episodes=(), followed=1.0):
@@ -99,3 +99,35 @@ def test_a_sweep_runs_the_real_pipeline_and_resumes(tmp_path, capsys):
     assert "[1/1]" not in capsys.readouterr().err
     # other settings into the same folder are refused
     assert main([*args, "--set", "tracker.max_misses=4"]) == 2
+
+
+def test_a_sweep_over_other_code_is_refused(tmp_path, capsys):
+    """The runs of a folder were made with one version of the source; resuming there with
+    another is refused before any run (as other settings are)."""
+    out = tmp_path / "sweep"
+    (out / "runs").mkdir(parents=True)
+    (out / "sweep_settings.json").write_text(json.dumps({"set": [], "code": "0" * 16}))
+    args = ["--output", str(out), "--scenario", "thesis_5_2_1_arc", "--seeds", "own"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "other code" in err and code_fingerprint() in err
+    assert not list((out / "runs").iterdir())
+
+
+@pytest.mark.multiprocess
+def test_a_sweep_whose_code_changes_while_it_runs_stops_and_drops_that_run(
+    tmp_path, capsys, monkeypatch
+):
+    """An edit to the source while a sweep runs (an editable install runs the working tree)
+    stops it at the next finished run, which is dropped: the runs after the edit would mix
+    versions. The fingerprint is made to change after the sweep started."""
+    import followbot.sweep as sweep
+
+    versions = iter(["a" * 16, "b" * 16])
+    monkeypatch.setattr(sweep, "code_fingerprint", lambda: next(versions, "b" * 16))
+    out = tmp_path / "sweep"
+    args = ["--output", str(out), "--scenario", "thesis_5_2_1_arc", "--seeds", "own", "--jobs", "1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "the code changed while the sweep ran" in err and "a" * 16 in err
+    assert not list((out / "runs").glob("*.json")) and not (out / "sweep.json").exists()
