@@ -68,7 +68,7 @@ def test_the_thesis_velocity_experiment_with_the_constant_velocity_option():
 
 def test_the_thesis_random_walk_model_underestimates_speed_on_clean_measurements():
     """Eq. 3-30 redraws v ~ N(0, 1 m/s) every scan, so the MMSE velocity is shrunk towards 0:
-    with exact positions the mean speed comes out near 0.6 x the truth (docs/tracker_log.md)."""
+    with exact positions the mean speed comes out near 0.6 x the truth (docs/tracker.md)."""
     records = run("thesis_5_2_2_straight", drive=(0.0, 0.0), duration_s=36.0, candidates="truth")
     m = metrics(records)
     assert m["tracked_visible_share"] > 0.99
