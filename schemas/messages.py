@@ -550,6 +550,13 @@ class Health(Message, tag="health", kw_only=True):
     rss_mb: NonNegative = 0.0
     """Resident memory of the process, MiB (0 where the platform does not say)."""
     notes: Annotated[list[Name], msgspec.Meta(max_length=16)] = []
+    reasons: Annotated[list[Name], msgspec.Meta(max_length=16)] = []
+    """Why ``status`` is not ``ok``, one short phrase each (e.g. ``rejecting every sensors/scan``,
+    ``no target model``, ``no peers``); empty when ``ok``."""
+    host: Name = ""
+    """Host name of the machine the service runs on."""
+    pid: Count = 0
+    """Process id of the service on that host."""
 
 
 class PersonTruth(msgspec.Struct, kw_only=True):

@@ -41,6 +41,7 @@ import logging
 import os
 import queue
 import signal
+import socket
 import threading
 import time
 from collections import deque
@@ -66,6 +67,8 @@ Dispatch = Literal["inline", "loop"]
 #: Environment variable naming a folder: every node started with it writes there, one line per
 #: message its handlers get, in the order they get them (docs/runtime.md, "Tracing inputs").
 TRACE_ENV = "FOLLOWBOT_TRACE_INPUTS"
+
+_HOST = socket.gethostname()[:256]
 
 #: Longest the loop sleeps without looking at its stop flag and timers.
 _MAX_WAIT_S = 0.1
@@ -217,7 +220,9 @@ class Node:
         self.errors = 0
         self.last_error = ""
         self.status: Literal["ok", "degraded", "error"] = "ok"
+        """A floor for the published status (a service that cannot work at all sets "error")."""
         self.notes: list[str] = []
+        self._conditions: dict[str, tuple[str, str]] = {}
         self._health_pub = bus.publisher(self.keys.health(service))
         self._last_health: tuple[int, dict[str, int], dict[str, int]] | None = None
         self._announced = False
@@ -447,6 +452,17 @@ class Node:
 
     # ------------------------------------------------------------------ health
 
+    def set_condition(self, key: str, level: Literal["degraded", "error"], reason: str) -> None:
+        """Report a lasting problem (e.g. ``no target model``) until :meth:`clear_condition`:
+        ``level`` lowers the published status and ``reason`` is listed in ``Health.reasons``."""
+        if level not in ("degraded", "error"):
+            raise ValueError(f"level must be 'degraded' or 'error', got {level!r}")
+        self._conditions[key] = (level, reason)
+
+    def clear_condition(self, key: str) -> None:
+        """End a problem reported with :meth:`set_condition` (no-op if there is none)."""
+        self._conditions.pop(key, None)
+
     def health(self) -> Health:
         """The current vital signs (also published every ``health_period_s``)."""
         now = time.monotonic_ns()
@@ -465,7 +481,16 @@ class Node:
                 dropped[i.topic] = i.dropped
         p50, p99 = self._proc.percentiles()
         status = self.status
-        if status == "ok" and (self.errors or dropped):
+        reasons: list[str] = []
+        if self.errors:
+            reasons.append(f"{self.errors} handler errors")
+        if dropped:
+            reasons.append("inputs dropped: " + ", ".join(sorted(dropped)))
+        for level, reason in self._conditions.values():
+            reasons.append(reason)
+            if level == "error" or status == "error":
+                status = "error"
+        if status == "ok" and reasons:
             status = "degraded"
         return Health(
             stamp_ns=time.time_ns(),
@@ -483,6 +508,9 @@ class Node:
             last_error=self.last_error[:1024],
             rss_mb=rss_mb(),
             notes=list(self.notes)[:16],
+            reasons=[r[:256] for r in reasons[:16]],
+            host=_HOST,
+            pid=os.getpid(),
         )
 
     def publish_health(self) -> None:
