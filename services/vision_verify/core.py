@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Annotated, Literal, Protocol, runtime_checkable
 
 import cv2
@@ -53,8 +53,10 @@ from followbot.schemas import Array, Horizon, TargetModel
 __all__ = [
     "COLOUR_BINS",
     "EDGE_BINS",
+    "MAX_MODEL_ID",
     "Camera",
     "ImageFeatures",
+    "InvalidModel",
     "Judgement",
     "Model",
     "Rect",
@@ -63,6 +65,8 @@ __all__ = [
     "adapt_features",
     "bhattacharyya",
     "blend",
+    "check_histogram",
+    "checked_model",
     "choose",
     "colour_histogram",
     "confident",
@@ -620,6 +624,110 @@ class Model(msgspec.Struct, kw_only=True):
         )
 
 
+#: Largest ``model_id`` accepted. Ids count the models built or loaded, one more each time
+#: (0 means "no model" in a Verification); a million is a new model a minute for two years.
+MAX_MODEL_ID = 1_000_000
+
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+class InvalidModel(ValueError):
+    """A target model that must not be used. ``kind`` names the check it failed (one of a few
+    fixed words, for counting); the message says what is wrong with it."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+def checked_model(
+    message: TargetModel,
+    verifier: Verifier,
+    cameras: Iterable[Camera],
+    *,
+    max_bytes: int | None = None,
+) -> Model:
+    """The model in ``message`` as ``verifier`` will judge with it, or :class:`InvalidModel`.
+
+    Every model passes here before it replaces the one in use, whether it came from the
+    network, a query reply or a file. It must be for this verifier, have a ``model_id`` in
+    1..:data:`MAX_MODEL_ID`, have been learnt on an image the size of one of ``cameras``, with
+    a rectangle no larger than that image and its position in front of the camera; its
+    features must be finite (and fit float32), at most ``max_bytes`` in all, and pass the
+    verifier's own ``check_model`` (histogram sizes and sums, see each verifier).
+    """
+    mid = message.model_id
+    if message.verifier != verifier.name:
+        raise InvalidModel(
+            "wrong_verifier",
+            f"model {mid} is for verifier {message.verifier!r}, this service runs "
+            f"{verifier.name!r}",
+        )
+    if not 1 <= mid <= MAX_MODEL_ID:
+        raise InvalidModel("bad_model_id", f"model_id {mid} is outside 1..{MAX_MODEL_ID}")
+    size = (message.image_width, message.image_height)
+    cams = list(cameras)
+    camera = next((c for c in cams if (c.width, c.height) == size), None)
+    if camera is None:
+        have = ", ".join(f"{c.width}x{c.height}" for c in cams)
+        raise InvalidModel(
+            "unknown_image_size",
+            f"model {mid} was learnt on a {size[0]}x{size[1]} image; the cameras here are {have}",
+        )
+    if message.rect_width_px > size[0] or message.rect_height_px > size[1]:
+        raise InvalidModel(
+            "bad_rectangle",
+            f"model {mid}: rectangle {message.rect_width_px:g}x{message.rect_height_px:g} px "
+            f"is larger than its {size[0]}x{size[1]} image",
+        )
+    nbytes = sum(len(a.data) for a in message.features.values())
+    if max_bytes is not None and nbytes > max_bytes:
+        raise InvalidModel(
+            "too_large", f"model {mid}: {nbytes} bytes of features, more than {max_bytes}"
+        )
+    for name, arr in message.features.items():
+        if arr.dtype in ("<f4", "<f8"):
+            raw = arr.numpy()
+            if not (np.isfinite(raw).all() and (np.abs(raw) <= _F32_MAX).all()):
+                raise InvalidModel(
+                    "non_finite", f"model {mid}: feature {name!r} holds NaN or infinite values"
+                )
+    try:
+        model = Model.from_message(message, camera)
+    except ValueError as exc:
+        raise InvalidModel("behind_camera", f"model {mid}: {exc}") from None
+    check = getattr(verifier, "check_model", None)
+    if check is not None:
+        try:
+            check(model)
+        except ValueError as exc:
+            raise InvalidModel("bad_features", f"model {mid}: {exc}") from None
+    return model
+
+
+def check_histogram(
+    features: dict[str, np.ndarray],
+    name: str,
+    bins: int,
+    sums: Sequence[float] = (1.0,),
+    tolerance: float = 1e-3,
+) -> np.ndarray:
+    """``features[name]``, checked to be a float histogram of ``bins`` non-negative values
+    whose sum is one of ``sums`` (within ``tolerance``); ValueError saying what is wrong."""
+    h = features.get(name)
+    if h is None:
+        raise ValueError(f"no {name!r} feature")
+    if h.dtype.kind != "f" or h.shape != (bins,):
+        raise ValueError(f"{name!r} is {h.dtype} {h.shape}, expected {bins} float bins")
+    if not np.isfinite(h).all() or (h < 0).any():
+        raise ValueError(f"{name!r} has negative or non-finite bins")
+    total = float(h.sum(dtype=np.float64))
+    if not any(abs(total - s) <= tolerance for s in sums):
+        want = " or ".join(f"{s:g}" for s in sums)
+        raise ValueError(f"{name!r} sums to {total:.6g}, expected {want}")
+    return h
+
+
 @runtime_checkable
 class Verifier(Protocol):
     """What every verifier plugin offers (entry-point group ``followbot.verifiers``).
@@ -627,6 +735,8 @@ class Verifier(Protocol):
     ``learn`` describes the target in the model rectangle; ``distances`` judges the candidates'
     views of one frame against the model (None for views not judged); ``describe`` gives the
     features of one rectangle, for the online update (None: the verifier does not adapt).
+    A verifier may also have ``check_model(model)``, raising ValueError when the model's
+    features are not what its ``learn`` gives (:func:`checked_model` calls it).
     """
 
     name: str

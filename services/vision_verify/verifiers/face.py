@@ -108,6 +108,15 @@ class FaceVerifier:
                 z, found = cam.height_m - rho * math.tan(float(beta[0])), 1.0
         return {"face": np.array([z, found], dtype=np.float32)}
 
+    def check_model(self, model: Model) -> None:
+        """ValueError unless ``face`` is what :meth:`learn` gives: [face-centre height in
+        metres, 1 if a face was seen at acquisition else 0] (float)."""
+        face = model.features.get("face")
+        if face is None or face.dtype.kind != "f" or face.shape != (2,):
+            raise ValueError(f"'face' must be 2 floats [height_m, found], got {face!r}")
+        if float(face[1]) not in (0.0, 1.0):
+            raise ValueError(f"'face' found flag must be 0 or 1, got {float(face[1])}")
+
     def describe(self, frame: ImageFeatures, rect: Rect):
         return None  # a face height does not drift: no online update
 

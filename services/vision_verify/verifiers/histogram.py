@@ -23,7 +23,16 @@ import cv2
 import msgspec
 import numpy as np
 
-from ..core import COLOUR_BINS, EDGE_BINS, ImageFeatures, Model, Rect, View, bhattacharyya
+from ..core import (
+    COLOUR_BINS,
+    EDGE_BINS,
+    ImageFeatures,
+    Model,
+    Rect,
+    View,
+    bhattacharyya,
+    check_histogram,
+)
 
 __all__ = ["HistogramSettings", "HistogramVerifier"]
 
@@ -70,6 +79,36 @@ class HistogramVerifier:
 
     def describe(self, frame: ImageFeatures, rect: Rect) -> dict[str, np.ndarray]:
         return frame.histograms(rect)
+
+    def check_model(self, model: Model) -> None:
+        """ValueError unless the features are what :meth:`learn` gives: ``colour_hs`` of 216
+        bins summing to 1 (0.5 when one half of the rectangle had no pixel),
+        ``edge_orientation`` of 72 summing to 1 (0: no edge at all), and, together or not at
+        all, ``patch_bgr`` (uint8 pixels, h x w x 3, no larger than the image) with
+        ``patch_rect`` (the rectangle inside it)."""
+        f = model.features
+        check_histogram(f, "colour_hs", COLOUR_BINS, (1.0, 0.5))
+        check_histogram(f, "edge_orientation", EDGE_BINS, (1.0, 0.0))
+        patch, where = f.get("patch_bgr"), f.get("patch_rect")
+        if (patch is None) != (where is None):
+            raise ValueError("'patch_bgr' and 'patch_rect' come together or not at all")
+        if patch is None:
+            return
+        if patch.dtype != np.uint8 or patch.ndim != 3 or patch.shape[2] != 3:
+            raise ValueError(
+                f"'patch_bgr' is {patch.dtype} {patch.shape}, expected uint8 h x w x 3"
+            )
+        h, w = patch.shape[:2]
+        if not (1 <= w <= model.image_width and 1 <= h <= model.image_height):
+            raise ValueError(
+                f"'patch_bgr' of {w}x{h} px does not fit the "
+                f"{model.image_width}x{model.image_height} image"
+            )
+        if where.shape != (4,):
+            raise ValueError(f"'patch_rect' has shape {where.shape}, expected (4,)")
+        x0, y0, x1, y1 = (float(c) for c in where)
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            raise ValueError(f"'patch_rect' {[x0, y0, x1, y1]} is not inside the {w}x{h} patch")
 
     def distance(self, feats: dict[str, np.ndarray], model: dict[str, np.ndarray]) -> float:
         s = self.settings

@@ -36,7 +36,16 @@ import cv2
 import msgspec
 import numpy as np
 
-from ..core import ImageFeatures, Model, Rect, View, _bins, _scratch, bhattacharyya
+from ..core import (
+    ImageFeatures,
+    Model,
+    Rect,
+    View,
+    _bins,
+    _scratch,
+    bhattacharyya,
+    check_histogram,
+)
 
 __all__ = ["MeanShiftSettings", "MeanShiftVerifier"]
 
@@ -183,6 +192,22 @@ class MeanShiftVerifier:
     def describe(self, frame: ImageFeatures, rect: Rect) -> dict[str, np.ndarray]:
         up, low = self.halves(frame, rect)
         return {"hs_upper": up, "hs_lower": low}
+
+    def check_model(self, model: Model) -> None:
+        """ValueError unless the features are what :meth:`learn` gives with these settings:
+        ``hs_upper`` and ``hs_lower`` of hue_bins x sat_bins bins, each summing to 1 (0: no
+        pixel passed the mask), and ``mass``, if there, two densities in [0, 1]."""
+        f = model.features
+        for name in ("hs_upper", "hs_lower"):
+            try:
+                check_histogram(f, name, self._bins, (1.0, 0.0))
+            except ValueError as exc:
+                raise ValueError(f"{exc} (meanshift with {self._bins} bins)") from None
+        mass = f.get("mass")
+        if mass is not None and (
+            mass.shape != (2,) or mass.dtype.kind != "f" or not ((mass >= 0) & (mass <= 1)).all()
+        ):
+            raise ValueError(f"'mass' must be two densities in [0, 1], got {mass!r}")
 
     def _model(self, model: Model) -> tuple[list[np.ndarray], list[float]]:
         hists = []
