@@ -16,13 +16,18 @@ into the image rectangle (the same person moved in both), and the pan did not ch
 the two frames (the thesis builds the model with the camera still). The camera's pan may be
 any fixed angle.
 
-Models are saved to and loaded from files as the msgpack-encoded TargetModel wire message.
+Models are saved to and loaded from files as the msgpack-encoded TargetModel wire message; the
+service keeps them in one folder (:class:`ModelFiles`, docs/vision_verify.md "Model files").
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import re
+import secrets
+import stat
 import tempfile
 from pathlib import Path
 
@@ -35,10 +40,14 @@ from followbot.schemas import PersonCandidates, RejectedMessage, TargetModel, de
 from .core import Camera, ImageFeatures, Model, Rect, Verifier, View, clip_rect
 
 __all__ = [
+    "MAX_MODEL_BYTES",
     "AcquireSettings",
     "Acquisition",
     "ModelBuilder",
+    "ModelFileError",
+    "ModelFiles",
     "build_model",
+    "default_models_dir",
     "load_model",
     "motion_rect",
     "moving_candidates",
@@ -394,12 +403,205 @@ def build_model(verifier: Verifier, camera: Camera, acq: Acquisition, model_id: 
 
 # --------------------------------------------------------------------------- files
 
+#: Default bound on a model file's size: a model holds the pixels it was learnt from
+#: (histogram verifier), ~0.1 MB at 320 x 240 and ~1.3 MB for a person filling a 1280 x 720
+#: frame.
+MAX_MODEL_BYTES = 4 * 1024 * 1024
+
+#: What a model name may be: a plain file name, no folder, not hidden (so never "." or "..").
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,127}")
+
+
+class ModelFileError(ValueError):
+    """A model file that cannot be saved or loaded; ``kind`` names why in a few fixed words
+    (for counting), the message says it in full."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+def default_models_dir() -> Path:
+    """``$XDG_DATA_HOME/followbot/models``, by default ``~/.local/share/followbot/models``."""
+    data = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(data) / "followbot" / "models"
+
+
+class ModelFiles:
+    """The model files of one folder, by name: the only files the service reads or writes on
+    a command from the network.
+
+    A name is a plain file name in the folder (letters, digits, ``.``, ``_``, ``-``; up to 128
+    characters; not starting with ``.``): no folders, no ``..``, no absolute paths. Nothing
+    but the folder itself is ever created, and only by :meth:`save`. Only regular files are
+    read: symbolic links, FIFOs, devices and folders are refused from what ``lstat`` says
+    before anything is opened, and the file is opened with ``O_NOFOLLOW | O_NONBLOCK``, so
+    no path can make the caller wait on a pipe. Files larger than ``max_bytes`` are refused
+    on both ways.
+    """
+
+    def __init__(self, folder: str | os.PathLike, max_bytes: int = MAX_MODEL_BYTES) -> None:
+        self.folder = Path(folder).expanduser().absolute()
+        self.max_bytes = max_bytes
+
+    def check_name(self, name: str) -> str:
+        """``name`` if it names a file of the folder; ModelFileError otherwise."""
+        if not _NAME.fullmatch(name):
+            raise ModelFileError(
+                "bad_name",
+                f"{name!r} is not a model name: a file name in {self.folder} (letters, digits, "
+                "'.', '_', '-', at most 128, not starting with '.'), no folders or '..'",
+            )
+        return name
+
+    def save(self, name: str, message: TargetModel) -> Path:
+        """Write ``message`` to ``name`` atomically (a reader never sees half a file); the
+        path written. Refused when it would be over ``max_bytes`` or ``name`` is taken by
+        something that is not a regular file."""
+        self.check_name(name)
+        data = encode(message)
+        if len(data) > self.max_bytes:
+            raise ModelFileError(
+                "too_large",
+                f"model {message.model_id} takes {len(data)} bytes, more than the "
+                f"{self.max_bytes} a model file may have",
+            )
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            dir_fd = os.open(self.folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        except OSError as exc:
+            raise ModelFileError(
+                "io_error", f"cannot use the models folder {self.folder}: {exc.strerror}"
+            ) from None
+        try:
+            self._require_regular_or_absent(name, dir_fd)
+            tmp = f".{name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+            flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+            try:
+                fd = os.open(tmp, flags, 0o644, dir_fd=dir_fd)
+                try:
+                    with os.fdopen(fd, "wb") as fh:
+                        fh.write(data)
+                    os.replace(tmp, name, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+                except BaseException:
+                    with contextlib.suppress(OSError):
+                        os.unlink(tmp, dir_fd=dir_fd)
+                    raise
+            except OSError as exc:
+                raise ModelFileError(
+                    "io_error", f"cannot write {self.folder / name}: {exc.strerror}"
+                ) from None
+        finally:
+            os.close(dir_fd)
+        return self.folder / name
+
+    def load(self, name: str) -> TargetModel:
+        """The model in file ``name`` of the folder; ModelFileError saying why not."""
+        self.check_name(name)
+        try:
+            dir_fd = os.open(self.folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        except FileNotFoundError:
+            raise ModelFileError(
+                "missing", f"no model file {name!r}: there is no models folder {self.folder}"
+            ) from None
+        except OSError as exc:
+            raise ModelFileError(
+                "io_error", f"cannot open the models folder {self.folder}: {exc.strerror}"
+            ) from None
+        try:
+            if not self._require_regular_or_absent(name, dir_fd):
+                raise ModelFileError("missing", f"no model file {name!r} in {self.folder}")
+            data = _read_regular(name, dir_fd, self.max_bytes, self.folder / name)
+        finally:
+            os.close(dir_fd)
+        return _decode_model(data, self.folder / name)
+
+    def _require_regular_or_absent(self, name: str, dir_fd: int) -> bool:
+        """Whether ``name`` exists; ModelFileError when it is not a regular file."""
+        try:
+            st = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
+        except FileNotFoundError:
+            return False
+        except OSError as exc:
+            raise ModelFileError(
+                "io_error", f"cannot look at {self.folder / name}: {exc.strerror}"
+            ) from None
+        if not stat.S_ISREG(st.st_mode):
+            raise ModelFileError(
+                "not_regular",
+                f"{self.folder / name} is a {_file_kind(st.st_mode)}, not a regular file",
+            )
+        return True
+
+
+def _file_kind(mode: int) -> str:
+    for test, what in (
+        (stat.S_ISLNK, "symbolic link"),
+        (stat.S_ISFIFO, "named pipe (FIFO)"),
+        (stat.S_ISCHR, "character device"),
+        (stat.S_ISBLK, "block device"),
+        (stat.S_ISDIR, "folder"),
+        (stat.S_ISSOCK, "socket"),
+    ):
+        if test(mode):
+            return what
+    return "special file"
+
+
+def _read_regular(
+    name: str | os.PathLike, dir_fd: int | None, max_bytes: int, shown: str | os.PathLike
+) -> bytes:
+    """The bytes of regular file ``name`` (at most ``max_bytes``), opened without blocking
+    (``O_NONBLOCK``: a FIFO would otherwise wait for a writer) and, inside a folder
+    (``dir_fd``), without following a symbolic link; ModelFileError otherwise."""
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC
+    if dir_fd is not None:
+        flags |= os.O_NOFOLLOW
+    try:
+        fd = os.open(name, flags, dir_fd=dir_fd)
+    except OSError as exc:
+        raise ModelFileError("io_error", f"cannot open {shown}: {exc.strerror}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ModelFileError(
+                "not_regular", f"{shown} is a {_file_kind(st.st_mode)}, not a regular file"
+            )
+        if st.st_size > max_bytes:
+            raise ModelFileError(
+                "too_large", f"{shown} has {st.st_size} bytes, more than the {max_bytes} allowed"
+            )
+        chunks, total = [], 0
+        while True:  # the size may change while we read: never take more than the bound
+            chunk = os.read(fd, min(1 << 20, max_bytes + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > max_bytes:
+                raise ModelFileError(
+                    "too_large", f"{shown} has more than the {max_bytes} bytes allowed"
+                )
+    except OSError as exc:
+        raise ModelFileError("io_error", f"cannot read {shown}: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+    return b"".join(chunks)
+
+
+def _decode_model(data: bytes, shown: str | os.PathLike) -> TargetModel:
+    try:
+        return decode(TargetModel, data)
+    except RejectedMessage as exc:
+        raise ModelFileError("not_a_model", f"{shown}: not a target model: {exc}") from None
+
 
 def save_model(path: str | os.PathLike, message: TargetModel) -> None:
-    """Write the model atomically (a reader never sees half a file)."""
+    """Write the model to ``path`` (a trusted path: tools and tests; the service writes
+    through :class:`ModelFiles`) atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(encode(message))
@@ -409,13 +611,8 @@ def save_model(path: str | os.PathLike, message: TargetModel) -> None:
         raise
 
 
-def load_model(path: str | os.PathLike) -> TargetModel:
-    """Read a model file; ``ValueError`` naming the file when it is missing or not a model."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise ValueError(f"cannot read model file {path}: {exc.strerror}") from None
-    try:
-        return decode(TargetModel, data)
-    except RejectedMessage as exc:
-        raise ValueError(f"{path}: not a target model: {exc}") from None
+def load_model(path: str | os.PathLike, max_bytes: int = MAX_MODEL_BYTES) -> TargetModel:
+    """Read a model file (a trusted path; the service reads through :class:`ModelFiles`):
+    ``ModelFileError`` (a ValueError) naming the file when it is missing, not a regular
+    file, larger than ``max_bytes`` or not a model. Never waits on a FIFO."""
+    return _decode_model(_read_regular(path, None, max_bytes, path), path)

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import math
+import os
+import threading
 
 import numpy as np
 import pytest
 
-from followbot.schemas import Candidate, Leg, PersonCandidates
+from followbot.schemas import Candidate, Leg, PersonCandidates, encode
 from followbot.services.vision_verify.core import Camera, Model
 from followbot.services.vision_verify.model import (
+    MAX_MODEL_BYTES,
     AcquireSettings,
     ModelBuilder,
+    ModelFileError,
+    ModelFiles,
     build_model,
     load_model,
     motion_rect,
@@ -215,8 +220,99 @@ def test_model_file_round_trip_and_bad_files(tmp_path):
     (tmp_path / "junk").write_bytes(b"\x00not a model")
     with pytest.raises(ValueError, match="not a target model"):
         load_model(tmp_path / "junk")
-    with pytest.raises(ValueError, match="cannot read"):
+    with pytest.raises(ValueError, match=r"cannot open .*missing: No such file"):
         load_model(tmp_path / "missing")
+
+
+def _message():
+    camera, acq, _ = acquired_scene()
+    return build_model(HistogramVerifier(), camera, acq, 7).to_message()
+
+
+def _returns_within(fn, timeout_s: float = 10.0):
+    """fn()'s result or exception, failing the test if it does not return in time (a read
+    that waits on a FIFO would never return)."""
+    out: list = []
+
+    def run():
+        try:
+            out.append(("ok", fn()))
+        except Exception as exc:
+            out.append(("error", exc))
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(timeout_s)
+    assert out, f"still blocked after {timeout_s} s"
+    return out[0]
+
+
+def test_model_files_round_trip_by_name_and_create_only_their_folder(tmp_path):
+    files = ModelFiles(tmp_path / "a" / "models")
+    path = files.save("alice.model", _message())
+    assert path == tmp_path / "a" / "models" / "alice.model" and path.is_file()
+    assert files.load("alice.model").model_id == 7
+    files.save("alice.model", _message())  # overwrites in place
+    assert sorted(p.name for p in (tmp_path / "a" / "models").iterdir()) == ["alice.model"]
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["../x", "/tmp/x", "sub/x", "..", ".", ".hidden", "", "a" * 129, "x\n", "x y", "~/x"],
+)
+def test_a_name_that_is_not_a_plain_file_of_the_folder_is_refused(tmp_path, name):
+    files = ModelFiles(tmp_path / "models")
+    for attempt in (lambda: files.save(name, _message()), lambda: files.load(name)):
+        with pytest.raises(ModelFileError, match="is not a model name") as err:
+            attempt()
+        assert err.value.kind == "bad_name"
+    assert list(tmp_path.iterdir()) == []  # nothing created, not even the folder
+
+
+def test_special_files_and_links_are_refused_without_waiting(tmp_path):
+    files = ModelFiles(tmp_path / "models")
+    files.save("good", _message())
+    folder = files.folder
+    os.mkfifo(folder / "pipe")
+    (folder / "dir").mkdir()
+    (tmp_path / "outside.model").write_bytes((folder / "good").read_bytes())
+    (folder / "out_link").symlink_to(tmp_path / "outside.model")
+    (folder / "in_link").symlink_to(folder / "good")
+    (folder / "zero").symlink_to("/dev/zero")
+    for name, what in [
+        ("pipe", "named pipe (FIFO)"),
+        ("dir", "folder"),
+        ("out_link", "symbolic link"),
+        ("in_link", "symbolic link"),
+        ("zero", "symbolic link"),
+    ]:
+        kind, err = _returns_within(lambda n=name: files.load(n))
+        assert kind == "error" and isinstance(err, ModelFileError), (name, err)
+        assert err.kind == "not_regular" and f"is a {what}, not a regular file" in str(err)
+        # saving over them is refused too: nothing is written through a link or into a pipe
+        with pytest.raises(ModelFileError, match="not a regular file"):
+            files.save(name, _message())
+    assert (tmp_path / "outside.model").read_bytes() == (folder / "good").read_bytes()
+
+
+def test_a_fifo_given_as_a_trusted_path_does_not_block_either(tmp_path):
+    os.mkfifo(tmp_path / "pipe")
+    kind, err = _returns_within(lambda: load_model(tmp_path / "pipe"))
+    assert kind == "error" and "named pipe (FIFO), not a regular file" in str(err)
+
+
+def test_model_files_over_the_size_bound_are_refused_both_ways(tmp_path):
+    size = len(encode(_message()))
+    files = ModelFiles(tmp_path / "models", max_bytes=size - 1)
+    with pytest.raises(ModelFileError, match=f"takes {size} bytes, more than the {size - 1}"):
+        files.save("big", _message())
+    assert not (files.folder / "big").exists()
+    ModelFiles(files.folder, max_bytes=size).save("big", _message())
+    with pytest.raises(ModelFileError, match=f"has {size} bytes, more than the {size - 1}"):
+        files.load("big")
+    (files.folder / "huge").write_bytes(b"\0" * (MAX_MODEL_BYTES + 1))  # the default bound
+    with pytest.raises(ModelFileError, match=f"more than the {MAX_MODEL_BYTES}"):
+        ModelFiles(files.folder).load("huge")
 
 
 def test_model_learnt_with_the_camera_panned_keeps_its_depth():
