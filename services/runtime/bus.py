@@ -131,8 +131,18 @@ class ZenohBus:
         return q
 
     def query(self, key: str, timeout_s: float) -> list[bytes]:
+        z = self._zenoh
         out = []
-        for reply in self.session.get(key, timeout=timeout_s):
+        # Every queryable, every answer: zenoh's defaults ask the one queryable it finds best
+        # and keep one answer per key, but holders all answer on the same key and the caller
+        # must see a good answer beside a bad one.
+        replies = self.session.get(
+            key,
+            target=z.QueryTarget.ALL,
+            consolidation=z.ConsolidationMode.NONE,
+            timeout=timeout_s,
+        )
+        for reply in replies:
             if reply.ok is not None:
                 out.append(reply.ok.payload.to_bytes())
         return out
