@@ -94,6 +94,7 @@ def test_target_command_reaches_vision_verify(spawn, endpoint, robot):
     out = followbot("target", "reset", "--robot", robot, "--connect", endpoint, "--wait", "10")
     assert out.returncode == 0, out.stderr
     assert "sent reset" in out.stdout
+    assert "vision_verify: done: target model dropped" in out.stdout  # its report, read back
     vision.wait_for_output("target model dropped", timeout=10)
     nobody = followbot("target", "reset", "--robot", robot + "x", "--wait", "0.5")
     assert nobody.returncode == 1 and "no vision_verify listening" in nobody.stderr

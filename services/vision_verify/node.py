@@ -4,7 +4,17 @@ Inputs: sensors/image (latest only), perception/candidates, perception/target_co
 perception/target_model (models of other workers), sensors/scan (used only while acquiring).
 Outputs: perception/verification (one per judged scan, naming the scan stamp and the candidate
 positions judged), perception/target_model (also answers queries, so a restarted stage or a
-second worker recovers the model; on start this service asks the network for one).
+second worker recovers the model).
+
+The model's life (docs/vision_verify.md "The target model"): on start the service asks the
+network for the model, and keeps asking every ``query_period_s`` while it has none, so a
+restarted worker recovers the model the tracker keeps. Every model -- from the network, a
+query reply or a file -- is checked (core.checked_model) before it replaces the one in use;
+one that fails is refused, counted in Health.rejected and logged. With ``auto_acquire`` a
+model is learnt only when nobody on the network holds one. Save and load commands name files
+of one folder (``models_dir``; model.ModelFiles); a refused command is counted in
+Health.rejected[perception/target_command], logged, and reported in Health.notes
+(``command <action> <stamp_ns> refused: <why>``), where ``followbot target`` reads it.
 
 Pairing: each candidates message waits (in a bounded buffer) for the image nearest its scan
 stamp within ``pair_tolerance_s``; the two newest decoded images are kept. Work that can no
@@ -22,8 +32,11 @@ for images, Health.notes for the rest), never fatal.
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 from collections import OrderedDict
+from collections.abc import Iterable
 from typing import Annotated, Any
 
 import cv2
@@ -42,9 +55,27 @@ from followbot.schemas import (
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings
+from followbot.services.runtime.stats import RateLimitedLog
 
-from .core import Camera, ImageFeatures, Model, adapt_features, confident, judge
-from .model import AcquireSettings, ModelBuilder, build_model, load_model, save_model
+from .core import (
+    Camera,
+    ImageFeatures,
+    InvalidModel,
+    Model,
+    adapt_features,
+    checked_model,
+    confident,
+    judge,
+)
+from .model import (
+    MAX_MODEL_BYTES,
+    AcquireSettings,
+    ModelBuilder,
+    ModelFileError,
+    ModelFiles,
+    build_model,
+    default_models_dir,
+)
 from .verifiers import make_verifier
 
 __all__ = ["VisionVerify", "VisionVerifySettings", "main", "setup"]
@@ -103,17 +134,47 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     fraction); measured worse: crowd_ten seed 4 lost its target for good, RMSE <= 0.08 m 66."""
     acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
     auto_acquire: bool = False
-    """Build a model, without a command, whenever there is none (one mover, still robot)."""
+    """Learn a model on start, without a command (one mover, still robot), when nobody on the
+    network holds one: it is used only after a query sent once ``model_holder`` was seen
+    alive (or ``recover_wait_s`` after start) found no model, and is dropped if a model is
+    recovered first (docs/vision_verify.md "The target model")."""
     acquire_timeout_s: _Pos = 30.0
-    model_file: str = ""
-    """Default file for save/load commands with no path."""
+    models_dir: str = ""
+    """Folder of the files that save/load commands name; nothing outside it is read or
+    written. "": $XDG_DATA_HOME/followbot/models (~/.local/share/followbot/models). A
+    relative path is taken from the working directory at start."""
+    model_file: str = "target.model"
+    """Name (a file of models_dir) for save/load commands that name none; "": none."""
+    max_model_bytes: Annotated[int, msgspec.Meta(ge=1024, le=1 << 30)] = MAX_MODEL_BYTES
+    """Largest model file saved or loaded, and largest model (its features) taken from the
+    network."""
     query_model_on_start: bool = True
+    """Ask the network for the model on start, and again every query_period_s while there
+    is none (until one is installed or a reset command drops it)."""
     query_timeout_s: _Pos = 1.0
+    """How long one query waits for answers."""
+    query_period_s: _Pos = 1.0
+    model_holder: str = "tracker"
+    """The service that keeps the model for a restarted worker (the tracker serves the last
+    model it got): once its liveliness is seen, a query it does not answer means it holds
+    none. "": no such service."""
+    recover_wait_s: _Pos = 3.0
+    """With auto_acquire and ``model_holder`` not seen alive: how long after start a query
+    still counts as possibly missing a holder (nobody holds a model is concluded only from
+    a query sent later)."""
     adapt_rate: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
     """Online model update rate per confident match (0: off; e.g. 0.02)."""
     adapt_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
     adapt_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
     adapt_publish_period_s: _Pos = 5.0
+
+
+class CommandRefused(ValueError):
+    """A target command that cannot be carried out; ``kind`` names why (for counting)."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
 
 
 class _Frame:
@@ -144,7 +205,25 @@ class VisionVerify:
                 else getattr(self.verifier, "default_threshold", None)
             )
         self.model: Model | None = None
-        self.model_id = 0
+        self.model_id = 0  # the largest id installed or built here
+        self.files = ModelFiles(
+            settings.models_dir or default_models_dir(), settings.max_model_bytes
+        )
+        if settings.model_file:
+            try:
+                self.files.check_name(settings.model_file)
+            except ModelFileError as exc:
+                raise ValueError(f"model_file: {exc}") from None  # a settings error: exit 2
+        self._log = RateLimitedLog(node.log)
+        # Recovery (see the module docstring): ask while there is no model; an auto-learnt
+        # model waits (held_build) until a conclusive query found nobody holding one.
+        self.asking = settings.query_model_on_start
+        self.nobody_holds = not settings.query_model_on_start
+        self.held_build: Model | None = None
+        self._holder_seen = threading.Event()
+        self._recover_deadline = time.monotonic() + settings.recover_wait_s
+        self._query_thread: threading.Thread | None = None
+        self.last_command = ""
         self.frames: list[_Frame] = []  # the two newest decoded images, oldest first
         self.period_ns = 0  # camera period estimate
         self.min_period_ns = 0  # shortest gap between two images (lock-step: when one is due)
@@ -152,6 +231,7 @@ class VisionVerify:
         self.last_judged_ns = -1
         self.counts: dict[str, int] = {}
         self.builder: ModelBuilder | None = None
+        self.builder_auto = False  # the builder runs for auto_acquire, not for a command
         self.acquire_deadline = 0.0
         self.scans: OrderedDict[int, np.ndarray] = OrderedDict()  # acquisition only
         # lock-step acquisition: images wait here so the builder sees every input in stamp order
@@ -171,14 +251,22 @@ class VisionVerify:
         self.in_candidates = node.subscribe(
             "perception/candidates", self.on_candidates, capacity=256, dispatch="loop"
         )
-        node.subscribe("perception/target_command", self.on_command, dispatch="loop")
-        node.subscribe("perception/target_model", self.on_model, capacity=8, dispatch="loop")
+        self.in_command = node.subscribe(
+            "perception/target_command", self.on_command, capacity=16, dispatch="loop"
+        )
+        self.in_model = node.subscribe(
+            "perception/target_model", self.on_model, capacity=8, dispatch="loop"
+        )
         node.subscribe("sensors/scan", self.on_scan, capacity=16, dispatch="loop")
         node.every(0.02, self.on_timer, name="vision_timer")
         node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
         node.every(settings.health_period_s, self.update_notes, name="notes")
+        node.every(settings.query_period_s, self.ask, name="ask_model")
+        if settings.model_holder:
+            node.bus.watch_liveliness(node.keys.alive(settings.model_holder), self._on_holder)
+        node.set_condition("model", "degraded", "no target model")
         if settings.auto_acquire:
-            self.start_acquire()
+            self.start_acquire(auto=True)
 
     # ------------------------------------------------------------------ helpers
 
@@ -188,8 +276,12 @@ class VisionVerify:
     def update_notes(self) -> None:
         model = f"model {self.model.model_id} ({self.model.verifier})" if self.model else "no model"
         acquiring = " acquiring" if self.builder is not None else ""
+        asking = " asking the network" if self.asking and self.model is None else ""
         counts = " ".join(f"{k}={v}" for k, v in sorted(self.counts.items()))
-        self.node.notes = [f"{model}{acquiring}", f"counts: {counts}"[:200]]
+        notes = [f"{model}{acquiring}{asking}", f"counts: {counts}"[:200]]
+        if self.last_command:
+            notes.append(self.last_command)
+        self.node.notes = notes
 
     def camera_for(self, image_width: int, image_height: int) -> Camera:
         for cam in self.s.cameras.values():
@@ -350,7 +442,7 @@ class VisionVerify:
             # loudly, rather than fail on every scan
             self.node.log.warning("dropping target model %d: %s", model.model_id, exc)
             self.count("model_incompatible")
-            self.model = None
+            self._set_model(None)
             if self.s.answer_every_scan:
                 self.publish_empty(msg)
             return
@@ -405,35 +497,63 @@ class VisionVerify:
 
     # ------------------------------------------------------------------ model
 
+    def _set_model(self, model: Model | None) -> None:
+        """The one place the model in use changes (Health says when there is none)."""
+        self.model = model
+        if model is None:
+            self.node.set_condition("model", "degraded", "no target model")
+            return
+        self.model_id = max(self.model_id, model.model_id)
+        self.node.clear_condition("model")
+        self.asking = False
+        if self.held_build is not None and self.held_build is not model:
+            self.node.log.info(
+                "dropping the model learnt meanwhile: model %d is in use", model.model_id
+            )
+            self.count("acquired_dropped")
+        self.held_build = None
+        if self.builder is not None and self.builder_auto:
+            self.node.log.info("auto-acquisition stopped: model %d is in use", model.model_id)
+            self.builder = None
+
+    def check(self, message: TargetModel) -> Model:
+        """``message`` as a model this service can use; InvalidModel otherwise."""
+        return checked_model(
+            message, self.verifier, self.s.cameras.values(), max_bytes=self.s.max_model_bytes
+        )
+
     def install(self, message: TargetModel, *, publish: bool, source: str) -> bool:
-        if message.verifier != self.verifier.name:
-            self.node.log.warning(
-                "ignoring %s model %d: it is for verifier %r, this service runs %r",
-                source,
-                message.model_id,
-                message.verifier,
-                self.verifier.name,
-            )
-            self.count("model_wrong_verifier")
-            return False
+        """Use the model of ``message`` from the network (``source``) if it passes the
+        checks; a refused one is counted in Health.rejected[perception/target_model]."""
         try:
-            model = Model.from_message(
-                message, self.camera_for(message.image_width, message.image_height)
+            model = self.check(message)
+        except InvalidModel as exc:
+            self.count(f"model_{exc.kind}")
+            self.node.reject(self.in_model, f"model {exc.kind}")
+            self._log.log(
+                logging.WARNING,
+                f"model:{exc.kind}",
+                "refused a target model from %s (%s): %s",
+                source,
+                f"model {self.model.model_id} stays in use" if self.model else "still none",
+                exc,
             )
-        except ValueError as exc:
-            self.node.log.warning("ignoring %s model: %s", source, exc)
-            self.count("model_invalid")
             return False
-        self.model, self.model_id = model, max(self.model_id, model.model_id)
+        self._use(model, publish=publish, source=source, message=message)
+        return True
+
+    def _use(
+        self, model: Model, *, publish: bool, source: str, message: TargetModel | None = None
+    ) -> None:
+        self._set_model(model)
         self.node.log.info("target model %d from %s", model.model_id, source)
         if publish:
             self.pub_model.put(model.to_message())
         else:  # serve it too, so it survives the worker that built it
-            self.pub_model.serve(message)
-        return True
+            self.pub_model.serve(message if message is not None else model.to_message())
 
     def on_model(self, message: TargetModel) -> None:
-        if message.model_id > self.model_id or self.model is None:
+        if self.model is None or message.model_id > self.model_id:
             self.install(message, publish=False, source="network")
 
     def publish_adapted(self) -> None:
@@ -441,31 +561,131 @@ class VisionVerify:
             self.model_dirty = False
             self.pub_model.put(self.model.to_message())
 
+    # ------------------------------------------------------------------ recovery
+
+    def _on_holder(self, _key: str, alive: bool) -> None:
+        """Zenoh's thread: the model holder's liveliness changed."""
+        if alive:
+            self._holder_seen.set()
+            self.node.call_soon(self.ask)  # it may hold the model: ask now, not next period
+
+    def _conclusive(self) -> bool:
+        """Whether a query sent now and answered by nobody means nobody holds a model."""
+        return (
+            not self.s.model_holder
+            or self._holder_seen.is_set()
+            or time.monotonic() >= self._recover_deadline
+        )
+
+    def recover(self) -> None:
+        """Setup, before the service says it is alive: ask once; with auto_acquire, go on
+        asking until a model is recovered or nobody holds one (at most recover_wait_s plus a
+        query), so a lock-step source, which waits for every stage, starts only then."""
+        while self.asking and not self.nobody_holds:
+            conclusive = self._conclusive()
+            self._answered(
+                self.node.query("perception/target_model", self.s.query_timeout_s), conclusive
+            )
+            if not self.s.auto_acquire or self.node.stopping:
+                return
+            if not self.nobody_holds and self.model is None:
+                left = self._recover_deadline - time.monotonic()
+                self._holder_seen.wait(min(self.s.query_period_s, max(left, 0.0)))
+
+    def ask(self) -> None:
+        """Ask the network for the model, in a thread of its own (a query may wait up to
+        query_timeout_s); the answers come back to the loop."""
+        if not self.asking or self.model is not None:
+            return
+        if self._query_thread is not None and self._query_thread.is_alive():
+            return
+        conclusive = self._conclusive()
+        node, timeout = self.node, self.s.query_timeout_s
+
+        def run() -> None:
+            try:
+                replies = node.query("perception/target_model", timeout)
+            except Exception as exc:  # the session closing under it: ask again next period
+                node.log.debug("model query failed: %s", exc)
+                return
+            node.call_soon(lambda: self._answered(replies, conclusive))
+
+        self._query_thread = threading.Thread(target=run, name="vision_model_query", daemon=True)
+        self._query_thread.start()
+
+    def _answered(self, replies: Iterable[TargetModel], conclusive: bool) -> None:
+        """A query's answers: the newest model that passes the checks is used; none, from a
+        conclusive query, lets an auto-learnt model in."""
+        if not self.asking or self.model is not None:
+            return
+        for message in sorted(replies, key=lambda m: m.model_id, reverse=True):
+            if self.install(message, publish=False, source="query"):
+                return
+        if conclusive and not self.nobody_holds:
+            self.nobody_holds = True
+            if self.s.auto_acquire:
+                self.node.log.info("nobody on the network holds a target model: learning one")
+            if self.held_build is not None:
+                self._use_built(self.held_build)
+
+    # ------------------------------------------------------------------ commands
+
     def on_command(self, cmd: TargetCommand) -> None:
-        path = cmd.path or self.s.model_file
+        name = cmd.path or self.s.model_file
+        try:
+            done = self._command(cmd, name)
+        except (ModelFileError, InvalidModel, CommandRefused) as exc:
+            self.count(f"command_{exc.kind}")
+            self.node.reject(self.in_command, f"{cmd.action} refused: {exc.kind}")
+            self._log.log(
+                logging.WARNING,
+                f"command:{cmd.action}:{exc.kind}",
+                "command %s %r refused: %s",
+                cmd.action,
+                name,
+                exc,
+            )
+            self._report(cmd, f"refused: {exc}")
+        else:
+            self._report(cmd, f"done: {done}")
+
+    def _report(self, cmd: TargetCommand, outcome: str) -> None:
+        """The last command's outcome, in Health.notes for the operator (followbot target)."""
+        self.last_command = f"command {cmd.action} {cmd.stamp_ns} {outcome}"[:256]
+        self.update_notes()
+
+    def _command(self, cmd: TargetCommand, name: str) -> str:
         if cmd.action == "acquire":
             self.start_acquire()
-        elif cmd.action == "reset":
-            self.model, self.builder = None, None
+            return "acquiring: the target should move alone in front of the still robot"
+        if cmd.action == "reset":
+            self._set_model(None)
+            self.builder, self.held_build, self.asking = None, None, False
             self.pub_model.serve(None)  # stop serving the dropped model
             self.pending.clear()
             self.node.log.info("target model dropped")
-        elif cmd.action == "save":
+            return "target model dropped"
+        if not name:
+            raise CommandRefused(
+                "no_name", f"{cmd.action}: no path in the command and no model_file setting"
+            )
+        if cmd.action == "save":
             if self.model is None:
-                raise ValueError("save: there is no target model")
-            if not path:
-                raise ValueError("save: no path in the command and no model_file setting")
-            save_model(path, self.model.to_message())
+                raise CommandRefused("no_model", "save: there is no target model")
+            path = self.files.save(name, self.model.to_message())
             self.node.log.info("target model %d saved to %s", self.model.model_id, path)
-        elif cmd.action == "load":
-            if not path:
-                raise ValueError("load: no path in the command and no model_file setting")
-            message = load_model(path)
-            message.model_id = max(self.model_id, message.model_id) + 1
-            self.install(message, publish=True, source=f"file {path}")
+            return f"model {self.model.model_id} saved to {path}"
+        message = self.files.load(name)  # load
+        message.model_id = max(self.model_id, message.model_id) + 1
+        model = self.check(message)
+        self._use(model, publish=True, source=f"file {self.files.folder / name}")
+        return f"model {model.model_id} loaded from {self.files.folder / name}"
 
-    def start_acquire(self) -> None:
+    # ------------------------------------------------------------------ acquisition
+
+    def start_acquire(self, *, auto: bool = False) -> None:
         self.builder = ModelBuilder(self.camera_for(*self._image_size()), self.s.acquire)
+        self.builder_auto = auto
         self.acquire_deadline = time.monotonic() + self.s.acquire_timeout_s
         self.scans.clear()
         self.acq_cands.clear()
@@ -509,9 +729,17 @@ class VisionVerify:
     def _acquired(self, acq) -> None:
         if acq is None or self.builder is None:
             return
-        self.builder = None
+        auto, self.builder = self.builder_auto, None
         model = build_model(self.verifier, self.builder_camera(acq), acq, self.model_id + 1)
-        self.model, self.model_id = model, model.model_id
+        if auto and not self.nobody_holds:
+            # someone may still hold the model: this one waits for a query to say nobody does
+            self.held_build = model
+            self.node.log.info("target model learnt; used once the network says nobody holds one")
+            return
+        self._use_built(model)
+
+    def _use_built(self, model: Model) -> None:
+        self._set_model(model)
         self.pending.clear()
         self.pub_model.put(model.to_message())
         self.node.log.info(
@@ -529,11 +757,7 @@ class VisionVerify:
 
 def setup(node: Node, settings: VisionVerifySettings) -> VisionVerify:
     svc = VisionVerify(node, settings)
-    if settings.query_model_on_start:
-        replies = [m for m in node.query("perception/target_model", settings.query_timeout_s)]
-        if replies:
-            best = max(replies, key=lambda m: m.model_id)
-            svc.install(best, publish=False, source="query")
+    svc.recover()
     return svc
 
 

@@ -8,6 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from followbot.schemas import (
+    Array,
     Candidate,
     Image,
     Keys,
@@ -30,10 +31,17 @@ from .helpers import acquired_scene, owner
 KEYS = Keys("robot")
 
 
+@pytest.fixture(autouse=True)
+def _models_home(tmp_path, monkeypatch):
+    """The default models folder ($XDG_DATA_HOME/followbot/models) in the test's own folder."""
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+
+
 class Rig:
     def __init__(self, net: FakeNetwork | None = None, **kw) -> None:
         self.net = net or FakeNetwork()
         kw.setdefault("query_timeout_s", 0.05)
+        kw.setdefault("model_holder", "")
         self.settings = load_settings(VisionVerifySettings, base=kw)
         self.node = Node("vision_verify", self.settings, self.net.bus())
         self.svc = setup(self.node, self.settings)
@@ -74,11 +82,14 @@ def crossing_frame():
     return px, image.pan_rad, cands, truth
 
 
-def loaded(model_file, **kw) -> Rig:
+def load_command(model_file) -> TargetCommand:
+    return TargetCommand(stamp_ns=0, action="load", path=model_file.name)
+
+
+def loaded(path, **kw) -> Rig:
+    kw.setdefault("models_dir", str(path.parent))
     rig = Rig(**kw)
-    rig.put(
-        "perception/target_command", TargetCommand(stamp_ns=0, action="load", path=str(model_file))
-    )
+    rig.put("perception/target_command", load_command(path))
     assert rig.svc.model is not None
     return rig
 
@@ -159,7 +170,7 @@ def test_stale_scans_are_dropped_not_queued(model_file):
 
 
 def test_lock_step_answers_every_scan_even_without_model_or_image(model_file):
-    rig = Rig(answer_every_scan=True, image_wait_s=0.01)
+    rig = Rig(answer_every_scan=True, image_wait_s=0.01, models_dir=str(model_file.parent))
     for k in range(3):
         rig.put("perception/candidates", PersonCandidates(stamp_ns=k + 1))
     assert [(v.stamp_ns, v.chosen, v.candidates) for v in rig.verifications()] == [
@@ -167,9 +178,7 @@ def test_lock_step_answers_every_scan_even_without_model_or_image(model_file):
         (2, -1, []),
         (3, -1, []),
     ]
-    rig.put(
-        "perception/target_command", TargetCommand(stamp_ns=0, action="load", path=str(model_file))
-    )
+    rig.put("perception/target_command", load_command(model_file))
     rig.put("perception/candidates", PersonCandidates(stamp_ns=10**9))  # no image ever comes
     import time
 
@@ -193,25 +202,183 @@ def test_a_restarted_worker_recovers_the_model_by_query(model_file):
     assert third.svc.model is not None and third.svc.model.model_id == 4
 
 
-def test_save_command_writes_a_loadable_file(model_file, tmp_path):
+class Holder:
+    """A stand-in for the tracker on the fake network: alive, and answering model queries
+    with ``model`` (None: it holds none), as the tracker's serve_last publisher does."""
+
+    def __init__(self, net: FakeNetwork, model: TargetModel | None) -> None:
+        self.bus = net.bus("tracker")
+        self.bus.liveliness_token(KEYS.alive("tracker"))
+        self.payload = None if model is None else encode(model)
+        self.bus.queryable(KEYS.topic("perception/target_model"), lambda: self.payload)
+
+
+def _the_model(model_file) -> TargetModel:
+    from followbot.services.vision_verify.model import load_model
+
+    return load_model(model_file)
+
+
+def _acquisition():
+    _, acq, _ = acquired_scene()
+    return acq
+
+
+def test_a_worker_without_a_model_keeps_asking_until_it_recovers_one(model_file):
+    """Nobody answers at start; the model appears later where only a query finds it (the
+    tracker serves it, nobody publishes it): the next periodic query recovers it."""
+    net = FakeNetwork()
+    rig = Rig(net=net)
+    assert rig.svc.model is None and rig.svc.asking
+    h = rig.node.health()
+    assert h.status == "degraded" and "no target model" in h.reasons
+    holder = Holder(net, None)
+    rig.node.run_timer("ask_model")
+    rig.svc._query_thread.join(5)
+    rig.node.spin_once()
+    assert rig.svc.model is None and rig.svc.asking  # asked: nobody has one yet
+    holder.payload = encode(_the_model(model_file))
+    rig.node.run_timer("ask_model")
+    rig.svc._query_thread.join(5)
+    rig.node.spin_once()
+    assert rig.svc.model is not None and rig.svc.model.model_id == 3
+    assert not rig.svc.asking
+    assert rig.node.health().status == "ok" and rig.node.health().reasons == []
+
+
+def test_a_reset_stops_the_asking(model_file):
+    net = FakeNetwork()
+    rig = Rig(net=net)
+    rig.put("perception/target_command", TargetCommand(stamp_ns=5, action="reset"))
+    assert rig.node.notes[-1] == "command reset 5 done: target model dropped"
+    Holder(net, _the_model(model_file))
+    rig.node.run_timer("ask_model")
+    assert rig.svc._query_thread is None  # the operator dropped the model: not recovered
+    assert rig.svc.model is None
+
+
+def test_auto_acquire_gives_way_to_the_model_a_holder_keeps(model_file):
+    """A restarted worker with auto_acquire: the tracker holds model 3; the worker recovers it
+    before it says it is alive, and does not learn another."""
+    net = FakeNetwork()
+    Holder(net, _the_model(model_file))
+    rig = Rig(net=net, auto_acquire=True, model_holder="tracker", recover_wait_s=30.0)
+    assert rig.svc.model.model_id == 3 and rig.svc.model_id == 3
+    assert rig.svc.builder is None  # auto-acquisition stopped: there is a model
+    assert rig.node.health().status == "ok"
+
+
+def test_auto_acquire_learns_when_the_holder_is_alive_and_holds_nothing():
+    net = FakeNetwork()
+    Holder(net, None)
+    rig = Rig(net=net, auto_acquire=True, model_holder="tracker", recover_wait_s=30.0)
+    assert rig.svc.nobody_holds and rig.svc.builder is not None  # at once, not after 30 s
+    rig.svc._acquired(_acquisition())
+    assert rig.svc.model is not None and rig.svc.model.model_id == 1
+    (published,) = rig.out("perception/target_model", TargetModel)
+    assert published.model_id == 1
+
+
+def test_a_model_learnt_before_anyone_answered_waits_and_loses_to_a_recovered_one(model_file):
+    """With no holder seen, nobody-holds-one is not concluded before recover_wait_s: a model
+    learnt meanwhile is held back; a model the network then gives is used instead."""
+    import time
+
+    net = FakeNetwork()
+    t0 = time.monotonic()
+    rig = Rig(net=net, auto_acquire=True, model_holder="tracker", recover_wait_s=0.3)
+    assert time.monotonic() - t0 >= 0.3  # setup asked until the wait was over
+    assert rig.svc.nobody_holds  # no holder appeared: nobody holds one
+    # the same, with the conclusion still open when the model is learnt
+    rig.svc.nobody_holds = False
+    rig.svc.start_acquire(auto=True)
+    rig.svc._acquired(_acquisition())
+    assert rig.svc.model is None and rig.svc.held_build is not None
+    assert rig.out("perception/target_model", TargetModel) == []
+    rig.svc._answered([_the_model(model_file)], conclusive=False)
+    assert rig.svc.model.model_id == 3 and rig.svc.held_build is None
+    assert rig.svc.counts["acquired_dropped"] == 1
+    # ... and had nobody answered, the held model would have gone in
+    other = Rig(net=FakeNetwork(), auto_acquire=True, recover_wait_s=0.01)
+    other.svc.nobody_holds = False
+    other.svc._acquired(_acquisition())
+    assert other.svc.model is None
+    other.svc._answered([], conclusive=True)
+    assert other.svc.model is not None and other.svc.model.model_id == 1
+
+
+def test_a_rogue_model_is_refused_and_the_model_in_use_stays(model_file):
+    import msgspec
+
     rig = loaded(model_file)
-    out = tmp_path / "saved.model"
-    rig.put("perception/target_command", TargetCommand(stamp_ns=0, action="save", path=str(out)))
-    other = Rig()
-    other.put("perception/target_command", TargetCommand(stamp_ns=0, action="load", path=str(out)))
+    good = rig.out("perception/target_model", TargetModel)[0]
+    colour = np.array(good.features["colour_hs"].numpy())
+    rogue = [
+        msgspec.structs.replace(  # NaN features
+            good,
+            model_id=20,
+            features={**good.features, "colour_hs": Array.from_numpy(colour * np.nan)},
+        ),
+        msgspec.structs.replace(good, model_id=10**9),  # an absurd id
+        msgspec.structs.replace(  # histogram of the wrong size
+            good,
+            model_id=50,
+            features={**good.features, "colour_hs": Array.from_numpy(colour[:100])},
+        ),
+        msgspec.structs.replace(good, model_id=51, verifier="meanshift"),
+    ]
+    for m in rogue:
+        rig.put("perception/target_model", m)
+    assert rig.svc.model.model_id == 4 and rig.svc.model_id == 4
+    h = rig.node.health()
+    assert h.rejected["perception/target_model"] == 4 and h.status == "ok"
+    c = rig.svc.counts
+    assert c["model_non_finite"] == 1 and c["model_bad_model_id"] == 1
+    assert c["model_bad_features"] == 1 and c["model_wrong_verifier"] == 1
+    px, pan, cands, _ = crossing_frame()
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    rig.put("perception/candidates", cands)
+    (v,) = rig.verifications()
+    assert v.model_id == 4 and v.chosen >= 0
+    # a good newer model from another worker still replaces it
+    rig.put("perception/target_model", msgspec.structs.replace(good, model_id=6))
+    assert rig.svc.model.model_id == 6
+
+
+def test_save_command_writes_a_loadable_file_in_the_models_folder(model_file, tmp_path):
+    rig = loaded(model_file)
+    rig.svc.files.folder = tmp_path / "models"  # saved elsewhere than the fixture's folder
+    rig.put("perception/target_command", TargetCommand(stamp_ns=7, action="save", path="saved"))
+    assert (tmp_path / "models" / "saved").is_file()
+    assert rig.node.notes[-1].startswith("command save 7 done: model 4 saved to ")
+    other = Rig(models_dir=str(tmp_path / "models"))
+    other.put("perception/target_command", TargetCommand(stamp_ns=0, action="load", path="saved"))
     assert other.svc.model.model_id == 5
-    # saving with no path and no model_file is an error counted by the node, not a crash
+    # no name: the model_file setting's, in the same folder
     rig.put("perception/target_command", TargetCommand(stamp_ns=0, action="save"))
-    rig.put(
-        "perception/target_command",
-        TargetCommand(stamp_ns=0, action="load", path=str(tmp_path / "missing")),
+    assert (tmp_path / "models" / "target.model").is_file()
+
+
+def test_a_save_or_load_that_cannot_be_done_is_refused_counted_and_reported(model_file, tmp_path):
+    rig = loaded(model_file, model_file="")
+    # no name and no model_file setting; a file that is not there: refused, not a failure
+    rig.put("perception/target_command", TargetCommand(stamp_ns=1, action="save"))
+    assert rig.node.notes[-1] == (
+        "command save 1 refused: save: no path in the command and no model_file setting"
     )
-    assert rig.node.errors == 2 and rig.svc.model.model_id == 4
+    rig.put("perception/target_command", TargetCommand(stamp_ns=2, action="load", path="gone"))
+    assert rig.node.notes[-1].startswith("command load 2 refused: no model file 'gone' in ")
+    assert rig.node.errors == 0 and rig.svc.model.model_id == 4
+    assert rig.node.health().rejected["perception/target_command"] == 2
+    empty = Rig(models_dir=str(tmp_path))
+    empty.put("perception/target_command", TargetCommand(stamp_ns=3, action="save", path="x"))
+    assert empty.node.notes[-1] == "command save 3 refused: save: there is no target model"
+    assert not (tmp_path / "x").exists()
 
 
-def test_a_model_the_verifier_cannot_use_is_dropped_once_not_failed_on_every_scan(model_file):
-    """A histogram model handed to a meanshift worker (or a meanshift model saved by an older
-    version): the first judgement finds it unusable; the model is dropped and counted."""
+def test_a_model_the_verifier_cannot_use_is_refused_at_the_door(model_file):
+    """A histogram model relabelled for a meanshift worker: its features are not meanshift's,
+    so it is refused on arrival (counted in Health.rejected), never installed."""
     import msgspec
 
     from followbot.services.vision_verify.model import load_model
@@ -219,13 +386,32 @@ def test_a_model_the_verifier_cannot_use_is_dropped_once_not_failed_on_every_sca
     rig = Rig(verifier="meanshift", answer_every_scan=True)
     wrong = msgspec.structs.replace(load_model(model_file), verifier="meanshift")
     rig.put("perception/target_model", wrong)
-    assert rig.svc.model is not None
+    assert rig.svc.model is None and rig.svc.counts["model_bad_features"] == 1
+    assert rig.node.health().rejected["perception/target_model"] == 1
+    assert "no target model" in rig.node.health().reasons
+
+
+def test_a_model_found_unusable_while_judging_is_dropped_once_not_failed_on_every_scan(
+    model_file,
+):
+    """A verifier plugin without check_model cannot refuse a model at the door: the first
+    judgement finds it unusable; the model is dropped, counted, and Health says so."""
+    import msgspec
+
+    from followbot.services.vision_verify.core import Camera, Model
+    from followbot.services.vision_verify.model import load_model
+
+    rig = Rig(verifier="meanshift", answer_every_scan=True)
+    wrong = msgspec.structs.replace(load_model(model_file), verifier="meanshift")
+    rig.svc._use(Model.from_message(wrong, Camera()), publish=False, source="test")
+    assert rig.svc.model is not None and rig.node.health().status == "ok"
     px, pan, cands, _ = crossing_frame()
     rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
     rig.put("perception/candidates", cands)
     assert rig.svc.model is None and rig.svc.counts["model_incompatible"] == 1
     (v,) = rig.verifications()  # lock-step: still answered
     assert v.stamp_ns == cands.stamp_ns and v.chosen == -1
+    assert rig.node.health().status == "degraded"
 
 
 def test_bad_images_and_candidates_are_counted_and_skipped(model_file):
