@@ -72,8 +72,9 @@ def test_scans_cross_from_robot_to_offboard_and_back_after_an_outage(tmp_path, r
 
 def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(tmp_path, robot):
     """compose/split.yaml on two hosts: the robot follows; the offboard vision machine dies
-    (the robot keeps tracking on the laser and says no_vision); it comes back and verifies
-    again with the target model recovered from the robot, not rebuilt."""
+    (the robot keeps tracking on the laser and says no_vision); it comes back, with
+    auto_acquire as before, and verifies again with the target model recovered from the
+    robot, not rebuilt."""
     import yaml
     from conftest import REPO
 
@@ -86,8 +87,6 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
         vision = {"robot": robot, "verifier": "histogram", "auto_acquire": True,
                   "zenoh": {"mode": "client", "connect": [f"tcp/{bot.address}:7447"]}}  # fmt: skip
         vision_cfg.write_text(yaml.safe_dump(vision))
-        back_cfg = tmp_path / "vision_back.yaml"
-        back_cfg.write_text(yaml.safe_dump({**vision, "auto_acquire": False}))
         logs = {n: (tmp_path / f"{n}.log").open("w") for n in ("up", "rec", "v1", "v2")}
 
         def start(host, log, *args):
@@ -119,7 +118,8 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
             v1.wait(5)
             time.sleep(9)
             t_back = time.time_ns()
-            procs.append(start(off, "v2", "run", "vision_verify", "--config", str(back_cfg)))
+            # the same settings, auto_acquire too: it must take the robot's model back
+            procs.append(start(off, "v2", "run", "vision_verify", "--config", str(vision_cfg)))
             time.sleep(9)
             t_end = time.time_ns()
         finally:
@@ -154,4 +154,5 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
         assert not phase(verifications, t_kill + 1_000_000_000, t_back)
         # back: verifying again with the recovered model (same id, no rebuild)
         assert "target model 1 from query" in diag, diag
+        assert "built" not in diag and "auto-acquisition stopped: model 1 is in use" in diag
         assert after and any(v.chosen >= 0 and v.model_id == 1 for v in after), diag
