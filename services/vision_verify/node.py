@@ -669,6 +669,7 @@ class VisionVerify:
             raise CommandRefused(
                 "no_name", f"{cmd.action}: no path in the command and no model_file setting"
             )
+        self.files.check_name(name)  # a bad name is named as such, whatever else is wrong
         if cmd.action == "save":
             if self.model is None:
                 raise CommandRefused("no_model", "save: there is no target model")
