@@ -154,3 +154,32 @@ def test_clients_talk_through_a_router(spawn, endpoint, robot, tmp_path):
     assert stats["received"] == 50 and stats["lost"] == 0
     router.signal(signal.SIGINT)
     assert router.wait(5) == 0, router.output
+
+
+def test_a_query_gets_the_answer_of_every_holder(endpoint, zenoh_session):
+    """Two sessions answer on the same key (say the tracker and a rogue peer, each holding a
+    target model): node.query's bus returns both answers, where Zenoh's default
+    consolidation keeps one per key."""
+    from followbot.services.runtime.bus import ZenohBus
+    from followbot.services.runtime.session import open_session
+    from followbot.services.runtime.settings import ZenohSettings
+
+    key = "followbot/q/perception/target_model"
+    others = [open_session(ZenohSettings(connect=[endpoint])) for _ in range(2)]
+    try:
+        holders = [
+            zenoh_session.declare_queryable(key, lambda q: q.reply(key, b"first")),
+            others[0].declare_queryable(key, lambda q: q.reply(key, b"second")),
+        ]
+        bus = ZenohBus(others[1])
+        deadline = time.monotonic() + 10
+        answers: list[bytes] = []
+        while len(answers) < 2 and time.monotonic() < deadline:
+            answers = bus.query(key, timeout_s=2.0)
+            time.sleep(0.1)
+        assert sorted(answers) == [b"first", b"second"]
+        for h in holders:
+            h.undeclare()
+    finally:
+        for s in others:
+            s.close()

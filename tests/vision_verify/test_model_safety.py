@@ -246,14 +246,6 @@ def test_a_late_restarted_worker_recovers_the_model_from_the_tracker_not_relearn
             return [decode(TargetModel, r.ok.payload.to_bytes()).model_id for r in replies if r.ok]
 
         assert served() == [4], tracker.output  # only the tracker is left, and it keeps it
-        # a rogue holder answers too, with a newer-looking model that is NaN
-        good = model_message(9)
-        colour = np.array(good.features["colour_hs"].numpy())
-        rogue = msgspec.structs.replace(
-            good, features={**good.features, "colour_hs": Array.from_numpy(colour * np.nan)}
-        )
-        key = keys.topic("perception/target_model")
-        rogue_holder = zenoh_session.declare_queryable(key, lambda q: q.reply(key, encode(rogue)))
         time.sleep(2.0)
         second = start_vision(
             spawn, robot, endpoint, f"models_dir={tmp_path / 'empty'}", "auto_acquire=true"
@@ -267,13 +259,48 @@ def test_a_late_restarted_worker_recovers_the_model_from_the_tracker_not_relearn
         assert "target model 4 from query" in second.output
         assert "auto-acquisition stopped: model 4 is in use" in second.output
         assert "built" not in second.output
-        assert h.rejected["perception/target_model"] >= 1  # the rogue answer, refused
-        assert "refused a target model from query" in second.output
-        rogue_holder.undeclare()
         assert served() == [4, 4]  # the tracker and the restarted worker serve the same model
         for p in (second, tracker):
             p.signal(signal.SIGTERM)
             assert p.wait(10) == 0, p.output
     finally:
         for d in (tracker_live, live, peer):
+            d.undeclare() if hasattr(d, "undeclare") else d.close()
+
+
+def test_a_worker_without_a_model_keeps_asking_and_takes_a_good_answer_beside_a_rogue_one(
+    spawn, endpoint, robot, zenoh_session, tmp_path
+):
+    """A rogue holder answers every query with a NaN model; the good holder (a tracker, here
+    played by the test) turns up later. The worker refuses the rogue answer each time, keeps
+    asking, and takes the good model when it is there."""
+    keys = Keys(robot)
+    key = keys.topic("perception/target_model")
+    good = model_message(4)
+    colour = np.array(good.features["colour_hs"].numpy())
+    rogue = msgspec.structs.replace(
+        good,
+        model_id=9,  # newer-looking
+        features={**good.features, "colour_hs": Array.from_numpy(colour * np.nan)},
+    )
+    holders = [zenoh_session.declare_queryable(key, lambda q: q.reply(key, encode(rogue)))]
+    live = LivelinessWatch(zenoh_session, keys.alive("vision_verify"))
+    peer = Peer(zenoh_session, robot)
+    proc = start_vision(spawn, robot, endpoint, f"models_dir={tmp_path}", "model_holder=")
+    try:
+        live.expect("PUT", timeout=20)
+        h = peer.health_until(proc, lambda h: h.rejected.get("perception/target_model", 0) >= 2)
+        assert h.status == "degraded" and "no target model" in h.reasons
+        assert h.notes[0] == "no model asking the network"
+        assert "refused a target model from query (still none): model 9: feature 'colour_hs'" in (
+            proc.output
+        )
+        holders.append(zenoh_session.declare_queryable(key, lambda q: q.reply(key, encode(good))))
+        h = peer.health_until(proc, lambda h: h.notes[0] == "model 4 (histogram)")
+        assert h.status == "ok" and h.reasons == []
+        assert peer.verification(proc).model_id == 4
+        proc.signal(signal.SIGTERM)
+        assert proc.wait(10) == 0, proc.output
+    finally:
+        for d in (*holders, live, peer):
             d.undeclare() if hasattr(d, "undeclare") else d.close()
