@@ -122,6 +122,10 @@ def stage_settings(
         # the wall-clock watchdog would brake the controller's own state between scans on a
         # slow machine (the sim ignores its commands, but the next command starts from them)
         out["controller"]["stale_after_s"] = 0.0
+        out["tracker"]["stale_after_s"] = 0.0
+        # the source sets the pace: a recording's gap is no stamp from the future
+        for stage in STAGES:
+            out[stage]["clock"] = {"max_ahead_s": None}
     return out
 
 

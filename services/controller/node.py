@@ -105,7 +105,10 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         scan = obstacles_for(t.stamp_ns) if ctl.guard is not None else None
         pts, view = (None, None) if scan is None else scan
         c = ctl.on_target(t, dt, pts, view)
-        st["last_target"] = now
+        if last_stamp is None or t.stamp_ns > last_stamp:
+            # only a target newer than the last one is fresh: a tracker repeating a stamp
+            # (its input stuck) must not keep the watchdog quiet
+            st["last_target"] = now
         st["last_stamp"] = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
         st["watchdog_out"] = False
         publish(c, t.stamp_ns)
@@ -154,13 +157,29 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
 
     def on_tracker_alive(alive: bool) -> None:
         st["tracker_alive"] = alive
+        if alive:
+            node.clear_condition("tracker")
+        else:
+            node.set_condition("tracker", "degraded", "tracker gone: braking to a stop")
         if not alive:
             node.log.warning("tracker liveliness gone: braking to zero velocity")
             watchdog()
 
-    node.subscribe("tracking/target", on_target, policy="all")
+    def restart_targets() -> None:
+        st.update(last_stamp=None, pending=None)
+
+    def restart_scans() -> None:
+        st["scans"].clear()
+
+    node.subscribe(
+        "tracking/target",
+        on_target,
+        policy="all",
+        on_restart=restart_targets,
+        expect_within_s=settings.stale_after_s or None,
+    )
     if ctl.guard is not None:
-        node.subscribe("sensors/scan", on_scan, policy="all")
+        node.subscribe("sensors/scan", on_scan, policy="all", on_restart=restart_scans)
     node.watch_alive(settings.tracker_service, on_tracker_alive)
     node.every(settings.watchdog_period_s, watchdog, name="watchdog")
     return ctl

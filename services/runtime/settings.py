@@ -16,6 +16,8 @@ from typing import Annotated, Any, Literal, TypeVar
 import msgspec
 import yaml
 
+from .clock import ClockSettings
+
 __all__ = [
     "DEFAULT_ENDPOINT",
     "NodeSettings",
@@ -73,6 +75,8 @@ class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """Robot name: every key lives under followbot/<robot>/."""
     zenoh: ZenohSettings = msgspec.field(default_factory=ZenohSettings)
     health_period_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
+    clock: ClockSettings = msgspec.field(default_factory=ClockSettings)
+    """How the stamps of received messages are judged (docs/runtime.md, "Clocks")."""
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
 
