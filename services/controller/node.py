@@ -94,6 +94,11 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         st["pending"] = None
         now = time.monotonic()
         last_stamp = st["last_stamp"]
+        if st["watchdog_out"] and last_stamp is not None and t.stamp_ns <= last_stamp:
+            # the watchdog is braking and this target is no newer than the last: it says
+            # nothing new (a tracker whose input is stuck), so braking goes on
+            publish(ctl.stop(now - st["last_out"], "stale"), last_stamp)
+            return
         if st["watchdog_out"] and st["last_out"] is not None:
             dt = now - st["last_out"]
         elif last_stamp is not None and 0 < t.stamp_ns - last_stamp <= settings.max_dt_s * 1e9:
