@@ -48,6 +48,9 @@ def test_json_files_work_too(tmp_path):
         ("", ["rate_hz"], "key=value"),
         ("robot: r1\n", ["robot.name=x"], "not a section"),
         ("", ["robot.name=x"], "not a section"),
+        ("", ["robot=a/b"], "robot name 'a/b' must be 1-64 characters"),
+        ("robot: 'two words'\n", [], "robot name 'two words' must be"),
+        ("clock:\n  max_ahead_s: -1\n", [], "clock.max_ahead_s"),
     ],
 )
 def test_bad_settings_name_the_problem(tmp_path, text, overrides, message):

@@ -30,6 +30,10 @@ _ControllerNodeBase = with_node_settings(ControllerSettings, "_ControllerNodeBas
 
 
 class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_fields=True):
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        core_settings(self)  # ControllerSettings' checks (the hardware caps) while loading
+
     stale_after_s: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """No target for this long (wall clock) -> brake to zero. 0 disables (lock-step on a slow
     machine, where wall time between scans means nothing)."""
@@ -47,9 +51,13 @@ class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_f
     (the base stops)."""
 
 
-def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
+def core_settings(settings: msgspec.Struct) -> ControllerSettings:
     names = ControllerSettings.__struct_fields__
-    ctl = FollowController(ControllerSettings(**{n: getattr(settings, n) for n in names}))
+    return ControllerSettings(**{n: getattr(settings, n) for n in names})
+
+
+def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
+    ctl = FollowController(core_settings(settings))
     cmd_pub = node.publisher("control/cmd_vel")
     pan_pub = node.publisher("control/pan")
     st = {

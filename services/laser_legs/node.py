@@ -79,6 +79,7 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     the world moves past; see services/laser_legs/self_filter.py). null: off."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         # checked while the settings load, so a bad detector or key fails before any network
         # is opened (exit code 2, the message naming the key)
         build_detector(self, check_only=True)

@@ -72,12 +72,17 @@ class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """Settings every service has."""
 
     robot: str = "robot"
-    """Robot name: every key lives under followbot/<robot>/."""
+    """Robot name: every key lives under followbot/<robot>/ (letters, digits, '_', '-')."""
     zenoh: ZenohSettings = msgspec.field(default_factory=ZenohSettings)
     health_period_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
     clock: ClockSettings = msgspec.field(default_factory=ClockSettings)
     """How the stamps of received messages are judged (docs/runtime.md, "Clocks")."""
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    def __post_init__(self) -> None:
+        from followbot.schemas import Keys
+
+        Keys(self.robot)  # a name that cannot be a key chunk is refused here, with the rule
 
 
 def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> type[NodeSettings]:

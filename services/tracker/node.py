@@ -36,6 +36,7 @@ _TrackerNodeBase = with_node_settings(TrackerSettings, "_TrackerNodeBase", __nam
 
 class TrackerNodeSettings(_TrackerNodeBase, kw_only=True, forbid_unknown_fields=True):
     def __post_init__(self) -> None:
+        super().__post_init__()
         core_settings(self)  # TrackerSettings' checks (the estimator) while the settings load
 
     vision_service: str = "vision_verify"
