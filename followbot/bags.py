@@ -1,8 +1,9 @@
 """Reading recordings: followbot MCAP files, ROS 1 bags and ROS 2 bags, as one message stream.
 
 :func:`open_recording` returns a :class:`Recording` whose :meth:`~Recording.messages` yields
-``(log_time_ns, topic, message)`` in log-time order, ``topic`` being a followbot topic (after
-remapping) and ``message`` a validated followbot message. ROS messages are converted:
+``(log_time_ns, topic, message)`` in log-time order (an MCAP without its index: in the order
+the recorder wrote them), ``topic`` being a followbot topic (after remapping) and ``message`` a
+validated followbot message. ROS messages are converted:
 
 =============================  ================================================
 ROS type                       followbot message
@@ -17,6 +18,10 @@ A ROS header stamp of 0 (some recorders leave it unset) is replaced by the bag's
 By default a ROS topic is mapped by its message type when that type has exactly one topic in
 the file (``/scan`` → ``sensors/scan``); otherwise ``--remap SRC=DST`` says which. Messages
 that fail conversion or validation are skipped and counted, never fatal.
+
+A damaged MCAP (cut short, a recorder killed, a bad chunk) is read up to the damage:
+:attr:`Recording.damage` then says how much was read and why it stopped.
+:meth:`Recording.select` narrows what is replayed (by default to the sensor topics).
 """
 
 from __future__ import annotations
@@ -25,10 +30,12 @@ import math
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 import numpy as np
 
+from followbot.mcapio import Damage
 from followbot.schemas import (
     TOPICS,
     Image,
@@ -40,7 +47,11 @@ from followbot.schemas import (
     topic_type,
 )
 
-__all__ = ["Recording", "RecordingError", "open_recording", "parse_remaps"]
+__all__ = ["SENSOR_PATTERNS", "Recording", "RecordingError", "open_recording", "parse_remaps"]
+
+#: What a replay sends by default: sensor input only. A live pipeline makes its own
+#: perception, tracking and commands; replaying recorded ones would double them.
+SENSOR_PATTERNS = ("sensors/*",)
 
 #: ROS message type -> the followbot topic it feeds by default.
 ROS_DEFAULT_TOPIC = {
@@ -75,10 +86,57 @@ class Recording:
     kind: str  # "mcap" | "ros"
     #: source topic -> followbot topic, for the topics that will be replayed
     mapping: dict[str, str]
-    #: source topic -> (type name, message count) for everything in the file
+    #: source topic -> (type name, message count) for everything in the file (of a damaged
+    #: file: what can be read)
     contents: dict[str, tuple[str, int]]
     skipped: Counter = field(default_factory=Counter)
     """Messages not replayed, by reason."""
+    left_out: dict[str, str] = field(default_factory=dict)
+    """Source topics not replayed: why, one line each."""
+    damage: Damage | None = None
+    """Where the file stops being readable: known on opening a file read without its index,
+    else found (and set) by :meth:`messages` when it reaches the damage."""
+    indexed: bool = True
+    """An MCAP whose index (summary section) is intact: read through it, in log-time order."""
+
+    def select(self, include: list[str] | None = None, exclude: list[str] | None = None) -> None:
+        """Replay only the topics matching a pattern of ``include`` (default
+        :data:`SENSOR_PATTERNS`) and none of ``exclude``.
+
+        A pattern (``fnmatch``: ``*``, ``?``, ``[...]``) matches a topic when it matches its
+        source name or the followbot topic it feeds. A pattern of ``include`` that matches no
+        topic of the file is an error (a typo would otherwise replay nothing of it).
+        """
+        patterns = list(include) if include is not None else list(SENSOR_PATTERNS)
+
+        def matches(pattern: str, src: str) -> bool:
+            return fnmatchcase(src, pattern) or fnmatchcase(self.mapping[src], pattern)
+
+        if include is not None:
+            for pattern in patterns:
+                if not any(matches(pattern, src) for src in self.mapping):
+                    raise RecordingError(
+                        f"{self.path}: --topics {pattern!r} matches no topic the file can "
+                        f"replay; it has: {', '.join(sorted(self.mapping)) or 'none'}"
+                    )
+        for src in list(self.mapping):
+            if not any(matches(p, src) for p in patterns):
+                self.left_out[src] = (
+                    "not sensor input (a live pipeline makes its own; --topics or "
+                    "--all-topics replays it)"
+                    if include is None
+                    else "not chosen by --topics"
+                )
+            elif any(matches(p, src) for p in exclude or []):
+                self.left_out[src] = "--exclude"
+            else:
+                continue
+            del self.mapping[src]
+        if not self.mapping:
+            raise RecordingError(
+                f"{self.path}: nothing left to replay: "
+                + "; ".join(f"{src}: {why}" for src, why in sorted(self.left_out.items()))
+            )
 
     def messages(self) -> Iterator[tuple[int, str, Message]]:
         if self.kind == "mcap":
@@ -89,27 +147,44 @@ class Recording:
     # ------------------------------------------------------------------ followbot MCAP
 
     def _mcap_messages(self) -> Iterator[tuple[int, str, Message]]:
-        from mcap.exceptions import McapError
-        from mcap.reader import make_reader
+        from followbot.mcapio import McapStream
 
-        n = 0
+        if not self.indexed:
+            stream = McapStream(self.path)
+            for topic, _schema, msg in stream.messages(self.mapping):
+                message = self._decoded(topic, msg.data)
+                if message is not None:
+                    yield msg.log_time, self.mapping[topic], message
+            self.damage = stream.damage
+            return
+        from mcap.reader import SeekingReader
+
+        n, first, last = 0, None, None
         with self.path.open("rb") as f:
-            try:
-                for _schema, channel, msg in make_reader(f).iter_messages(
-                    topics=list(self.mapping)
-                ):
-                    dst = self.mapping[channel.topic]
-                    try:
-                        message = decode(topic_type(dst), msg.data)
-                    except RejectedMessage:
-                        self.skipped["invalid payload"] += 1
-                        continue
-                    n += 1
-                    yield msg.log_time, dst, message
-            except (McapError, EOFError, OSError, ValueError) as exc:
-                raise RecordingError(
-                    f"{self.path}: truncated or corrupt after {n} messages ({exc})"
-                ) from None
+            items = SeekingReader(f, validate_crcs=True).iter_messages(topics=list(self.mapping))
+            while True:
+                try:
+                    _schema, channel, msg = next(items)
+                except StopIteration:
+                    return
+                except Exception as exc:  # the parser's own errors, struct, zstd, ... on bad bytes
+                    size = self.path.stat().st_size
+                    why = f"a damaged chunk ({type(exc).__name__}: {exc})"
+                    self.damage = Damage(why, n, first, last, size)
+                    return
+                n += 1
+                first = msg.log_time if first is None else min(first, msg.log_time)
+                last = msg.log_time if last is None else max(last, msg.log_time)
+                message = self._decoded(channel.topic, msg.data)
+                if message is not None:
+                    yield msg.log_time, self.mapping[channel.topic], message
+
+    def _decoded(self, src: str, data: bytes) -> Message | None:
+        try:
+            return decode(topic_type(self.mapping[src]), data)
+        except RejectedMessage:
+            self.skipped["invalid payload"] += 1
+            return None
 
     # ------------------------------------------------------------------ ROS bags
 
@@ -153,66 +228,59 @@ def open_recording(path: str | Path, remaps: dict[str, str] | None = None) -> Re
 
 
 def _open_mcap(path: Path, remaps: dict[str, str]) -> Recording:
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
+    from mcap.reader import SeekingReader
 
+    from followbot.mcapio import McapStream, check_magic
+
+    problem = check_magic(path)
+    if problem:
+        raise RecordingError(f"{path}: not a readable MCAP file ({problem})")
     try:
         with path.open("rb") as f:
-            reader = make_reader(f)
-            summary = reader.get_summary()
-            if summary is None:
-                # No index (the writer did not finish): count by streaming, which also finds
-                # where the file breaks.
-                contents, truncated = _scan_unindexed(path)
-            else:
-                counts = summary.statistics.channel_message_counts if summary.statistics else {}
-                contents = {
-                    ch.topic: (summary.schemas[ch.schema_id].name if ch.schema_id else "",
-                               counts.get(ch.id, 0))
-                    for ch in summary.channels.values()
-                }  # fmt: skip
-                foreign = [
-                    ch.topic for ch in summary.channels.values() if ch.message_encoding != "msgpack"
-                ]
-                if foreign:
-                    raise RecordingError(
-                        f"{path}: channels {foreign} are not followbot messages (encoding "
-                        "is not msgpack); for a ROS 2 MCAP bag pass its bag folder"
-                    )
-                truncated = False
-    except (McapError, EOFError, OSError) as exc:
-        raise RecordingError(f"{path}: not a readable MCAP file ({exc})") from None
-    mapping = {}
+            summary = SeekingReader(f).get_summary()
+    except Exception:  # cut short or damaged at the end: no index to trust, read front to back
+        summary = None
+    damage = None
+    indexed = summary is not None and bool(summary.chunk_indexes)
+    if indexed:
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        contents = {
+            ch.topic: (summary.schemas[ch.schema_id].name if ch.schema_id else "",
+                       counts.get(ch.id, 0))
+            for ch in summary.channels.values()
+        }  # fmt: skip
+        encodings = {ch.topic: ch.message_encoding for ch in summary.channels.values()}
+    else:
+        # No index (the writer did not finish, or the file was cut): count by streaming,
+        # which also finds where the file breaks.
+        stream = McapStream(path)
+        counts = Counter(topic for topic, _, _ in stream.messages())
+        contents = {t: (schema, counts[t]) for t, (schema, _) in stream.channels.items()}
+        encodings = {t: enc for t, (_, enc) in stream.channels.items()}
+        damage = stream.damage
+        if damage is not None and not damage.messages:
+            raise RecordingError(f"{path}: no message could be read: {damage.reason}")
+    foreign = sorted(t for t, enc in encodings.items() if enc != "msgpack")
+    if foreign:
+        raise RecordingError(
+            f"{path}: channels {foreign} are not followbot messages (encoding "
+            "is not msgpack); for a ROS 2 MCAP bag pass its bag folder"
+        )
+    mapping, left_out = {}, {}
     for src in contents:
         dst = remaps.pop(src, src)
         if dst in TOPICS or dst.startswith("health/"):
             mapping[src] = dst
+        else:
+            left_out[src] = "not a followbot topic"
     if remaps:
         raise RecordingError(
             f"{path}: no topic {sorted(remaps)} in the file; it has {sorted(contents)}"
         )
     if not mapping:
         raise RecordingError(f"{path}: no followbot topics in the file ({sorted(contents)})")
-    rec = Recording(path, "mcap", mapping, contents)
-    if truncated:
-        rec.skipped["file truncated: messages after the break"] += 1
-    return rec
-
-
-def _scan_unindexed(path: Path) -> tuple[dict[str, tuple[str, int]], bool]:
-    from mcap.exceptions import McapError
-    from mcap.reader import NonSeekingReader
-
-    counts: Counter = Counter()
-    names: dict[str, str] = {}
-    with path.open("rb") as f:
-        try:
-            for schema, channel, _msg in NonSeekingReader(f).iter_messages():
-                counts[channel.topic] += 1
-                names[channel.topic] = schema.name if schema else ""
-        except (McapError, EOFError, ValueError):
-            return {t: (names[t], n) for t, n in counts.items()}, True
-    return {t: (names[t], n) for t, n in counts.items()}, False
+    return Recording(path, "mcap", mapping, contents, left_out=left_out, damage=damage,
+                     indexed=indexed)  # fmt: skip
 
 
 def _open_ros(path: Path, remaps: dict[str, str]) -> Recording:
@@ -259,7 +327,14 @@ def _open_ros(path: Path, remaps: dict[str, str]) -> Recording:
             f"{', '.join(sorted(ROS_DEFAULT_TOPIC))}); the bag has: "
             + ", ".join(f"{t} ({ty})" for t, (ty, _) in sorted(contents.items()))
         )
-    return Recording(path, "ros", mapping, contents)
+    left_out = {
+        src: f"no conversion of {msgtype} to a followbot message"
+        if msgtype not in ROS_DEFAULT_TOPIC
+        else f"another {msgtype} topic feeds {ROS_DEFAULT_TOPIC[msgtype]}"
+        for src, (msgtype, _) in contents.items()
+        if src not in mapping
+    }
+    return Recording(path, "ros", mapping, contents, left_out=left_out)
 
 
 # --------------------------------------------------------------------------- conversions
