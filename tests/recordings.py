@@ -6,6 +6,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from followbot.mcapio import McapTopicWriter
 from followbot.schemas import LaserScan, Odometry, TrackState, VelocityCommand, encode
 from followbot.services.sim.synthetic import SyntheticScene, SyntheticSettings
@@ -74,3 +76,40 @@ def write_recording(
             ends.append(out.size_bytes())
     out.close()
     return Layout(path, ends, scans_per_chunk, path.stat().st_size)
+
+
+def write_ros1_bag(
+    path: Path, scans: int = 60, compression: str = "none", chunk_bytes: int = 1 << 20
+) -> list[int]:
+    """A ROS 1 bag of 10 Hz LaserScans on /scan (written by rosbags, as `rosbag record`
+    would: connection records inside the chunks, the index at the end); returns the stamps."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    scan_type, header_type = (
+        store.types["sensor_msgs/msg/LaserScan"],
+        store.types["std_msgs/msg/Header"],
+    )
+    time_type = store.types["builtin_interfaces/msg/Time"]
+    scene = SyntheticScene(SyntheticSettings(noise_m=0.0))
+    stamps = []
+    writer = Writer(path)
+    if compression != "none":
+        writer.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+    writer.chunk_threshold = chunk_bytes
+    with writer:
+        conn = writer.add_connection("/scan", scan_type.__msgtype__, typestore=store)
+        for i in range(scans):
+            stamp = T0_NS + i * 100_000_000
+            sec, nsec = divmod(stamp, 1_000_000_000)
+            msg = scan_type(
+                header=header_type(seq=i, stamp=time_type(sec=sec, nanosec=nsec), frame_id="laser"),
+                angle_min=scene.angle_min, angle_max=scene.angle_min + scene.angle_inc * 719,
+                angle_increment=scene.angle_inc, time_increment=0.0, scan_time=0.1,
+                range_min=0.02, range_max=8.0, ranges=scene.ranges(i * 0.1),
+                intensities=np.zeros(0, np.float32),
+            )  # fmt: skip
+            writer.write(conn, stamp, store.serialize_ros1(msg, scan_type.__msgtype__))
+            stamps.append(stamp)
+    return stamps

@@ -456,3 +456,80 @@ def test_non_positive_or_non_finite_durations_counts_and_rates_are_refused(
     argv = [*command.split(), *required.get(command, []), f"{option}={value}"]
     err = _refused(main, argv, capsys)
     assert f"argument {option}: must be a " in err and f"got {value!r}" in err
+
+
+# ----------------------------------------------------------------------------- ROS 1 bags
+
+
+@pytest.mark.parametrize("compression", ["none", "bz2", "lz4"])
+def test_a_cut_ros1_bag_is_read_up_to_the_cut(tmp_path, compression):
+    """rosbags needs the index at the end of a bag: a cut one is read front to back instead."""
+    from recordings import write_ros1_bag
+
+    whole = tmp_path / "whole.bag"
+    stamps = write_ros1_bag(whole, compression=compression, chunk_bytes=20_000)
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(data[: len(data) // 2])
+    rec = open_recording(cut)
+    assert not rec.indexed and rec.mapping == {"/scan": "sensors/scan"}
+    scans = [m for _, _, m in rec.messages()]
+    assert 0 < len(scans) < len(stamps)
+    assert [s.stamp_ns for s in scans] == stamps[: len(scans)]
+    np.testing.assert_array_equal(scans[-1].ranges_m(), next(
+        m for _, _, m in open_recording(whole).messages() if m.stamp_ns == scans[-1].stamp_ns
+    ).ranges_m())  # fmt: skip
+    assert rec.damage is not None and "cut short" in rec.damage.reason
+    assert rec.damage.messages == len(scans) and rec.skipped == {}
+
+
+def test_an_uncompressed_ros1_chunk_cut_short_gives_its_messages_up_to_the_cut(tmp_path):
+    from recordings import write_ros1_bag
+
+    whole = tmp_path / "whole.bag"
+    stamps = write_ros1_bag(whole, chunk_bytes=1 << 30)  # one chunk, written at the close
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(data[: len(data) // 2])  # inside the only chunk
+    rec = open_recording(cut)
+    got = [m.stamp_ns for _, _, m in rec.messages()]
+    assert len(stamps) // 3 < len(got) < len(stamps) and got == stamps[: len(got)]
+    assert "ends inside an uncompressed chunk" in rec.damage.reason
+
+
+def test_an_unfinished_ros1_bag_is_read_whole(tmp_path):
+    """`rosbag record` killed leaves a .bag.active: its chunks written, no index."""
+    import struct
+
+    from recordings import write_ros1_bag
+
+    whole = tmp_path / "whole.bag"
+    stamps = write_ros1_bag(whole, compression="lz4", chunk_bytes=20_000)
+    data = bytearray(whole.read_bytes())
+    at = data.index(b"index_pos=") + len(b"index_pos=")
+    (index_pos,) = struct.unpack_from("<Q", data, at)
+    data[at : at + 8] = bytes(8)  # never indexed, as the recorder leaves it
+    active = tmp_path / "run.bag.active"
+    active.write_bytes(data[:index_pos])
+    rec = open_recording(active)
+    assert [m.stamp_ns for _, _, m in rec.messages()] == stamps
+    assert "never indexed" in rec.damage.reason and rec.damage.messages == len(stamps)
+    info = followbot("replay", str(active), "--info")
+    assert info.returncode == 0, info.stderr
+    assert "/scan" in info.stderr and "-> sensors/scan" in info.stderr
+    assert f"is damaged: read {len(stamps)} messages" in info.stderr
+
+
+def test_a_bag_with_nothing_readable_is_a_clear_error(tmp_path):
+    from recordings import write_ros1_bag
+
+    whole = tmp_path / "whole.bag"
+    write_ros1_bag(whole)
+    stub = tmp_path / "stub.bag"
+    stub.write_bytes(whole.read_bytes()[:5000])  # the bag header, not one message
+    with pytest.raises(RecordingError, match="no message could be read"):
+        open_recording(stub)
+    junk = tmp_path / "junk.bag"
+    junk.write_bytes(b"not a bag at all")
+    out = followbot("replay", str(junk))
+    assert out.returncode == 2 and "not a ROS 1 bag" in out.stderr
