@@ -233,7 +233,9 @@ def test_a_recorder_killed_outright_leaves_a_file_that_replays(spawn, endpoint, 
     assert rec.p.returncode == -9
 
     recording = open_recording(out)
-    assert recording.damage is not None and "did not finish" in recording.damage.reason
+    # killed between two flushes (or, rarely, in the middle of writing one)
+    reason = recording.damage.reason
+    assert "did not finish" in reason or "cut short" in reason, reason
     scans = [m for _, t, m in recording.messages() if t == "sensors/scan"]
     assert (scans[-1].stamp_ns - scans[0].stamp_ns) / 1e9 >= 2.0, len(scans)
     assert [s.seq for s in scans] == list(range(scans[0].seq, scans[0].seq + len(scans)))
