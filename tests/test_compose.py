@@ -249,3 +249,9 @@ services:
         assert "monitor stopped" in rest and "synthetic stopped" in rest
     finally:
         up.close()
+
+
+def test_no_compose_file_listens_on_every_interface():
+    for path in sorted((REPO / "compose").glob("*.yaml")):
+        text = path.read_text()
+        assert "0.0.0.0" not in text and "[::]" not in text, path

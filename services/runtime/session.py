@@ -65,6 +65,13 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
             put("connect/timeout_ms", int(settings.connect_timeout_s * 1000))
     if listen:
         put("listen/endpoints", listen)
+    elif settings.mode != "client" and isinstance(
+        json.loads(conf.get_json("listen/endpoints")), dict
+    ):
+        # Nothing says where to listen (a mode-dependent dict is zenoh's own default: every
+        # interface, tcp/[::]). Listen on loopback only.
+        loopback = DEFAULT_ENDPOINT if settings.mode == "router" else "tcp/127.0.0.1:0"
+        put("listen/endpoints", [loopback])
     return conf
 
 
