@@ -107,6 +107,7 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "record": ("followbot.recording", "record_main", "record topics to MCAP"),
     "replay": ("followbot.recording", "replay_main", "replay an MCAP file or a ROS 1/2 bag"),
     "bench": ("followbot.bench", "main", "run the benchmarks"),
+    "certs": ("followbot.certs", "main", "a CA and per-service certificates for secure Zenoh"),
 }
 
 

@@ -17,6 +17,7 @@ import msgspec
 import yaml
 
 from .clock import ClockSettings
+from .security import AccessSettings, AuthSettings, TlsSettings
 
 __all__ = [
     "DEFAULT_ENDPOINT",
@@ -66,6 +67,13 @@ class ZenohSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     it is dropped (zenoh's wait_before_drop; its default is 1 ms). At 1 ms the stages lost
     about 1 output in 12 000 at 200 scans/s whenever another process took the CPU for a
     moment (make soak); a congested link, not a busy scheduler, should be what drops."""
+    # Security (security.py; docs/compose.md "Secure deployment"): all off by default.
+    tls: TlsSettings = msgspec.field(default_factory=TlsSettings)
+    """Mutual TLS: ca, cert, key (PEM files); endpoints must then be tls/host:port."""
+    auth: AuthSettings = msgspec.field(default_factory=AuthSettings)
+    """Zenoh user/password: user + password_file, or (router) dictionary_file."""
+    access: AccessSettings = msgspec.field(default_factory=AccessSettings)
+    """Router: access rules, robot + identities (identity -> roles); default deny."""
 
 
 class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
