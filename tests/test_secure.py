@@ -389,6 +389,36 @@ def test_split_secure_names_the_missing_certificate_and_how_to_make_it(tmp_path,
         service_settings(compose, "tracker")
 
 
+def test_services_of_one_process_share_one_identity_with_the_rights_of_each(tmp_path):
+    from followbot.services.runtime.compose import group_settings
+
+    make_certs(tmp_path / "certs", ["router", "core", "operator"])
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        f"robot: r1\nsecurity: {{certs: {tmp_path / 'certs'}}}\n"
+        "zenoh: {mode: client, connect: [tls/127.0.0.1:7447]}\n"
+        "services:\n"
+        "  router: {settings: {zenoh: {mode: router, connect: [], "
+        "listen: [tls/127.0.0.1:7447]}}}\n"
+        "  laser_legs: {process: core}\n  tracker: {process: core}\n"
+        "  controller: {process: core}\n"
+    )
+    compose = load_compose(path)
+    group = group_settings(compose, ["laser_legs", "tracker", "controller"])
+    assert group["zenoh"]["tls"]["cert"] == str(tmp_path / "certs" / "core.pem")
+    assert group["zenoh"]["auth"]["user"] == "core"
+    access = service_settings(compose, "router")["zenoh"]["access"]
+    assert access["identities"] == {"router": ["router"], "core": ["laser_legs", "tracker",
+                                    "controller"], "operator": ["operator"]}  # fmt: skip
+
+
+def test_a_security_section_naming_no_router_entry_is_refused(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("security: {certs: c, router: hub}\nservices: {monitor: {}}\n")
+    with pytest.raises(ComposeError, match=r"security\.router: no service 'hub'"):
+        load_compose(path)
+
+
 # ----------------------------------------------------------------------------- two hosts
 
 reason = unavailable()

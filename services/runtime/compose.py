@@ -7,13 +7,14 @@ A compose file is YAML, validated strictly (an unknown key is an error naming it
     preset: thesis                 # thesis | bellotto | livingston | ristic | zhuang
     zenoh: {mode: peer}            # defaults for every service
     hosts:                         # optional: per-machine zenoh settings
-      robot:    {zenoh: {listen: [tcp/0.0.0.0:7447]}}
+      robot:    {zenoh: {listen: [tcp/192.168.1.10:7447]}}
       offboard: {zenoh: {connect: [tcp/192.168.1.10:7447]}}
     services:
       sim:        {settings: {scenario: thesis_5_2_1_arc}, stop_all_on_exit: true}
       laser_legs: {}
       vision_verify: {host: offboard}
       tracker:    {restart: always}
+    security: {certs: certs}       # optional: TLS, passwords, access rules (security.py)
 
 Settings of a service are merged, lowest first: the preset's choices for it, the file's
 ``zenoh``, its host's ``zenoh``, what the ``security`` section gives it (security.py), then

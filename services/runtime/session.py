@@ -133,7 +133,8 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+        help="endpoint to listen on, e.g. tcp/192.168.1.10:7447 (repeatable; default: "
+        "loopback only)",
     )
     g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 configuration file")
     g.add_argument(
