@@ -159,8 +159,9 @@ def test_tls_and_auth_settings_become_zenoh_mutual_tls_and_user_password(certs):
     assert tls["connect_certificate"] == str(certs / "tracker.pem")
     assert tls["connect_private_key"] == str(certs / "tracker.key")
     assert _get(conf, "transport/auth/usrpwd/user") == "tracker"
-    # the password itself is kept secret by zenoh (not shown by get_json); it was read
-    assert (certs / "tracker.password").read_text().strip()
+    # the password is read from its file (settings and up's settings files hold only the path)
+    password = (certs / "tracker.password").read_text().strip()
+    assert password and _get(conf, "transport/auth/usrpwd/password") == password
 
 
 def test_zenoh_config_file_still_applies_under_the_security_settings(tmp_path, certs):
@@ -281,6 +282,75 @@ def test_a_process_of_several_services_plays_each_of_their_roles():
                   "health/tracker", "health/controller"):  # fmt: skip
         assert _allowed(acl, "core", "put", f"followbot/r1/{topic}"), topic
     assert not _allowed(acl, "core", "put", "followbot/r1/perception/target_command")
+
+
+def test_the_router_passes_presence_health_and_queries_only_as_the_roles_say(certs, endpoint):
+    """Real Zenoh sessions (TLS, passwords, the generated rules at a router): a service's own
+    liveliness token comes and goes, a token or Health under another service's name is
+    dropped, and only roles that may ask get the target model."""
+    from followbot.services.runtime.session import open_session
+
+    tls_endpoint = endpoint.replace("tcp/", "tls/")
+
+    def settings(identity: str, **kw) -> ZenohSettings:
+        tls = {"ca": str(certs / "ca.pem"), "cert": str(certs / f"{identity}.pem"),
+               "key": str(certs / f"{identity}.key")}  # fmt: skip
+        return _zenoh(tls=tls, **kw)
+
+    def client(identity: str):
+        auth = {"user": identity, "password_file": str(certs / f"{identity}.password")}
+        return open_session(settings(identity, mode="client", connect=[tls_endpoint], auth=auth))
+
+    access = {"robot": "r1", "identities": {n: [n] for n in ("tracker", "vision_verify",
+                                                               "operator")}}  # fmt: skip
+    router = open_session(settings("router", mode="router", listen=[tls_endpoint],
+                                   auth={"dictionary_file": str(certs / "users.txt")},
+                                   access=access))  # fmt: skip
+    sessions = [router]
+    try:
+        tracker = client("tracker")
+        sessions.append(tracker)
+        alive, health = [], []
+        tracker.liveliness().declare_subscriber(
+            "followbot/r1/alive/*",
+            lambda s: alive.append((str(s.key_expr).rsplit("/", 1)[1], str(s.kind))),
+            history=True,
+        )
+        tracker.declare_subscriber(
+            "followbot/r1/health/*", lambda s: health.append(str(s.key_expr).rsplit("/", 1)[1])
+        )
+        tracker.declare_queryable(
+            "followbot/r1/perception/target_model",
+            lambda q: q.reply("followbot/r1/perception/target_model", b"model 1"),
+        )
+        vision = client("vision_verify")
+        vision.liveliness().declare_token("followbot/r1/alive/vision_verify")
+        vision.liveliness().declare_token("followbot/r1/alive/controller")  # not its own
+        time.sleep(0.5)
+        vision.put("followbot/r1/health/vision_verify", b"ok")
+        vision.put("followbot/r1/health/controller", b"ok")  # not its own
+        time.sleep(0.5)
+        vision.close()  # the vision process goes away: its token with it
+        deadline = time.monotonic() + 5
+        while len(alive) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert alive == [
+            ("vision_verify", "SampleKind.PUT"),
+            ("vision_verify", "SampleKind.DELETE"),
+        ]
+        assert health == ["vision_verify"]
+        operator, vision2 = client("operator"), client("vision_verify")
+        sessions += [operator, vision2]
+
+        def ask(session) -> list[bytes]:
+            replies = session.get("followbot/r1/perception/target_model", timeout=2.0)
+            return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+
+        assert ask(vision2) == [b"model 1"]
+        assert ask(operator) == []
+    finally:
+        for session in reversed(sessions):
+            session.close()
 
 
 class _RecordingBus(FakeBus):

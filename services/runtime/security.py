@@ -253,8 +253,7 @@ def access_control(
         subjects.append(subject)
         members.append(identity)
         own = []
-        rights = _rights(keys, [ROLES[r] if ROLES[r].nodes is not None else _named(r)
-                                for r in roles])  # fmt: skip
+        rights = _rights(keys, roles)
         for message, key_exprs in rights.items():
             rule_id = f"{identity}: {message}"
             rules.append(_rule(rule_id, "ingress", [message], key_exprs))
@@ -273,12 +272,8 @@ def access_control(
     }
 
 
-def _named(role: str) -> Role:
-    r = ROLES[role]
-    return Role(publishes=r.publishes, answers=r.answers, asks=r.asks, nodes=(role,))
-
-
-def _rights(keys, roles: list[Role]) -> dict[str, list[str]]:
+def _rights(keys, roles: list[str]) -> dict[str, list[str]]:
+    """Message kind -> the keys on which roles ``roles`` together may send it."""
     out: dict[str, list[str]] = {}
 
     def add(message: str, key: str) -> None:
@@ -286,7 +281,8 @@ def _rights(keys, roles: list[Role]) -> dict[str, list[str]]:
         if key not in out[message]:
             out[message].append(key)
 
-    for role in roles:
+    for name in roles:
+        role = ROLES[name]
         for topic in role.publishes:
             add("put", keys.topic(topic))
         for topic in role.answers:
@@ -294,7 +290,7 @@ def _rights(keys, roles: list[Role]) -> dict[str, list[str]]:
             add("reply", keys.topic(topic))
         for topic in role.asks:
             add("query", keys.topic(topic))
-        for node in role.nodes or ():
+        for node in (name,) if role.nodes is None else role.nodes:
             add("put", keys.health(node))
             add("liveliness_token", keys.alive(node))
     return out
