@@ -30,6 +30,7 @@ from followbot.services.vision_verify.footage import (
     evaluate,
     footage_camera,
     frame_candidates,
+    learn_model,
     read_boxes,
     score,
     view_of,
@@ -227,9 +228,7 @@ def test_a_box_distance_does_not_depend_on_the_other_boxes_judged(name, clip):
     frame.cache["camera"] = camera
     if hasattr(verifier, "camera"):
         verifier.camera = camera
-    from followbot.services.vision_verify.footage import _new_model
-
-    model = _new_model(verifier, frame, cands[0], camera, 1)
+    model = learn_model(verifier, frame, cands[0], camera, 1)
     views = [view_of(c, i, camera) for i, c in enumerate(cands)]
     full = verifier.distances(frame, views, model)
     fresh = ImageFeatures(bgr)
@@ -262,11 +261,15 @@ def test_mot_files_count_frames_from_one_and_skip_ignored_rows(tmp_path):
     # a MOT-style file whose frames count from 0
     b0 = read_boxes(p, first_frame=0)
     assert sorted(b0.frames) == [1, 2, 4]
+    # numbers in exponent form are still a MOT row, not a header
+    p.write_text("1,7,1e1,20,16,40\n")
+    assert read_boxes(p).frames == {0: [Box(7, 10.0, 20.0, 16.0, 40.0)]}
 
 
 def test_the_pets09_csv_counts_frames_from_zero_and_finds_columns_by_name(tmp_path):
     p = tmp_path / "boxes.csv"
-    p.write_text("id,frame,w_px,h_px,x_px,y_px,note\n9,0,31.03,75.17,499.2,157.69,a\n")
+    # (with the byte-order mark a spreadsheet may put first)
+    p.write_text("\ufeffid,frame,w_px,h_px,x_px,y_px,note\n9,0,31.03,75.17,499.2,157.69,a\n")
     b = read_boxes(p)
     assert b.format == "csv" and b.first_frame == 0
     assert b.frames == {0: [Box(9, 499.2, 157.69, 31.03, 75.17)]}

@@ -61,9 +61,12 @@ __all__ = [
     "Report",
     "Tally",
     "evaluate",
+    "footage_camera",
     "frame_candidates",
+    "learn_model",
     "read_boxes",
     "score",
+    "view_of",
     "visible_fractions",
 ]
 
@@ -134,6 +137,14 @@ def _number(text: str) -> float:
     return value
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _whole(text: str) -> int:
     value = float(text)
     if not (math.isfinite(value) and value == int(value)):
@@ -151,18 +162,19 @@ def read_boxes(
     Formats: ``csv``, a header naming ``frame,id,x_px,y_px,w_px,h_px`` (any order, more columns
     allowed; the pets09 file); ``mot``, MOTChallenge rows ``frame,id,x,y,w,h[,flag,...]`` with
     no header, whose rows with a 7th column of 0 (ground truth's "ignore this box") are skipped.
-    ``auto``: ``csv`` when the first line has a letter in it. Frame numbers are mapped to video
-    frames by subtracting ``first_frame`` (default: 1 for MOT, which counts from 1; 0 for csv).
+    ``auto``: ``csv`` when a field of the first line is not a number (a header). Frame numbers
+    are mapped to video frames by subtracting ``first_frame`` (default: 1 for MOT, which
+    counts from 1; 0 for csv).
     :class:`BoxFileError` when the file cannot be read or no row gives a box."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = path.read_text(encoding="utf-8-sig", errors="replace")  # -sig: a leading BOM
     except OSError as exc:
         raise BoxFileError(f"cannot read box file {path}: {exc.strerror}") from None
     lines = text.splitlines()
     first = next((ln for ln in lines if ln.strip()), "")
     if format == "auto":
-        format = "csv" if any(c.isalpha() for c in first) else "mot"
+        format = "csv" if not all(_is_number(c) for c in first.split(",")) else "mot"
     if format not in ("mot", "csv"):
         raise ValueError(f"unknown box file format {format!r}: auto, mot or csv")
     if first_frame is None:
@@ -432,13 +444,14 @@ class Report:
         }
 
 
-def _new_model(
+def learn_model(
     verifier: Verifier,
     frame: ImageFeatures,
     c: Candidate,
     camera: Camera,
     model_id: int,
 ) -> Model:
+    """The model of candidate ``c``, learnt by ``verifier`` on ``frame``."""
     view = view_of(c, 0, camera)
     x0, y0, x1, y1 = c.rect
     return Model(
@@ -568,8 +581,10 @@ def evaluate(
             # models learnt in this frame, for the choices lags later
             due = [n for n in lags if f + n < end]
             for i, c in enumerate(cands):
-                one = _new_model(verifier, frame, c, camera, next(ids))
                 follow = following.get(c.id)
+                one = None
+                if due or follow is None:
+                    one = learn_model(verifier, frame, c, camera, next(ids))
                 if follow is None:
                     follow = one
                 elif adapt_rate > 0:
