@@ -266,6 +266,27 @@ def test_mot_files_count_frames_from_one_and_skip_ignored_rows(tmp_path):
     assert read_boxes(p).frames == {0: [Box(7, 10.0, 20.0, 16.0, 40.0)]}
 
 
+def test_a_mot_file_of_the_clip_gives_the_same_figures_as_its_csv(clip, tmp_path):
+    video, boxes = clip
+    mot = tmp_path / "gt.txt"
+    mot.write_text(
+        "".join(
+            f"{f + 1},{pid},{x},{y},{w},{h},1,1,1.0\n"
+            for f in range(FRAMES)
+            for pid in (1, 2, 3)
+            for x, y, w, h in [person_box(pid, f)]
+        )
+    )
+
+    def figures(b):
+        report = evaluate(video, b, make_verifier("histogram"), lags=(10,), adapt_rate=0.1)
+        return [{k: v for k, v in r.items() if "ms" not in k} for r in report.summary()["results"]]
+
+    assert figures(read_boxes(mot)) == figures(read_boxes(boxes))
+    # read as if frame 1 were the video's second frame, every box is a frame late
+    assert figures(read_boxes(mot, first_frame=0)) != figures(read_boxes(boxes))
+
+
 def test_the_pets09_csv_counts_frames_from_zero_and_finds_columns_by_name(tmp_path):
     p = tmp_path / "boxes.csv"
     # (with the byte-order mark a spreadsheet may put first)
