@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 # Arguments passed through to the CLI, e.g. `make demo ARGS="--duration 10"`.
 ARGS   ?=
 
-.PHONY: all test lint format bench demo soak schemas clean opencv-data
+.PHONY: all test lint format bench demo soak chaos schemas clean opencv-data
 
 all: test
 
@@ -42,6 +42,11 @@ demo: $(STAMP)
 # Long run: FOLLOWBOT_SOAK_S (default 60) seconds at FOLLOWBOT_SOAK_RATE (default 200) scans/s.
 soak: $(STAMP)
 	$(BIN)/python -m pytest -q -s -m soak --run-soak --timeout=0 tests/test_soak.py $(ARGS)
+
+# Fault injection (a few minutes): the whole system under `followbot up` while each service is
+# killed in turn and a rogue peer sends garbage and stamps from the wrong time; prints figures.
+chaos: $(STAMP)
+	$(BIN)/python -m pytest -q -s -m chaos --run-chaos --timeout=0 tests/test_chaos.py $(ARGS)
 
 # Real pedestrian footage for the vision tests: Debian's opencv-doc (examples/data/vtest.avi),
 # unpacked once into a cache outside the clone. Needs apt-get (Debian/Ubuntu).

@@ -17,6 +17,8 @@ import argparse
 import sys
 import time
 
+from followbot.services.runtime.argtypes import positive_float
+
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.schemas import TargetCommand, TargetModel
@@ -37,13 +39,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument(
         "--wait",
-        type=float,
+        type=positive_float,
         default=5.0,
         help="seconds to wait for vision_verify to listen, and then for its answer (5)",
     )
     p.add_argument(
-        "--timeout", type=float, default=30.0, help="acquire: seconds to wait for a model (30)"
-    )
+        "--timeout", type=positive_float, default=30.0,
+        help="acquire: seconds to wait for a model (30)",
+    )  # fmt: skip
     add_zenoh_arguments(p)
     args = p.parse_args(argv)
     settings = load_settings(NodeSettings, None, [*overrides_from_args(args), "log_level=warning"])

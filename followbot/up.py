@@ -195,16 +195,16 @@ def main(argv: list[str] | None = None) -> int:
     for process, members in process_groups(compose, names):
         spec = compose.services[members[0]]
         config = log_dir / f"{process}.settings.yaml"
-        if len(members) == 1 and spec.process is None:
-            settings = service_settings(compose, process)
-            service = spec.service or process
-        else:  # several services in one process (docs/runtime.md)
-            try:
+        try:
+            if len(members) == 1 and spec.process is None:
+                settings = service_settings(compose, process)
+                service = spec.service or process
+            else:  # several services in one process (docs/runtime.md)
                 settings = group_settings(compose, members)
-            except ComposeError as exc:
-                print(f"followbot up: {exc}", file=sys.stderr)
-                return 2
-            service = "+".join(compose.services[m].service or m for m in members)
+                service = "+".join(compose.services[m].service or m for m in members)
+        except ComposeError as exc:
+            print(f"followbot up: {exc}", file=sys.stderr)
+            return 2
         config.write_text(yaml.safe_dump(settings, sort_keys=False))
         children.append(Child(process, service, config, spec.restart, spec.stop_all_on_exit))
     # Validate every service's merged settings the way the service itself will.

@@ -20,15 +20,21 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 
 def pytest_addoption(parser):
     parser.addoption("--run-soak", action="store_true", help="run the long soak tests")
+    parser.addoption("--run-chaos", action="store_true", help="run the fault-injection tests")
 
 
 def pytest_collection_modifyitems(config, items):
-    if config.getoption("--run-soak"):
-        return
-    skip = pytest.mark.skip(reason="soak test: opt in with `make soak` (--run-soak)")
-    for item in items:
-        if "soak" in item.keywords:
-            item.add_marker(skip)
+    opt_in = {
+        "soak": ("--run-soak", "soak test: opt in with `make soak` (--run-soak)"),
+        "chaos": ("--run-chaos", "fault injection: opt in with `make chaos` (--run-chaos)"),
+    }
+    for marker, (option, reason) in opt_in.items():
+        if config.getoption(option):
+            continue
+        skip = pytest.mark.skip(reason=reason)
+        for item in items:
+            if marker in item.keywords:
+                item.add_marker(skip)
 
 
 @pytest.fixture

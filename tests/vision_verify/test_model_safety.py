@@ -148,7 +148,8 @@ def test_save_and_load_outside_the_models_folder_are_refused_and_the_service_sti
         peer.command("load", "big.model")
         peer.command("load", "/dev/zero")
         h = peer.health_until(proc, lambda h: h.rejected.get("perception/target_command") == 6)
-        assert h.errors == 0 and h.status == "ok"
+        assert h.errors == 0
+        peer.health_until(proc, lambda h: h.status == "ok")  # refusals are no lasting harm
         assert peer.verification(proc).model_id == 4  # still answering, same model
         # one line per kind of refusal at least (a flood of one kind is rate-limited)
         for reason in (
@@ -201,7 +202,8 @@ def test_rogue_models_are_refused_and_verification_goes_on_with_the_model_in_use
         ):
             peer.put("perception/target_model", encode(rogue))
         h = peer.health_until(proc, lambda h: h.rejected.get("perception/target_model") == 3)
-        assert h.status == "ok" and h.errors == 0 and any("model 4 " in n for n in h.notes)
+        assert h.errors == 0 and h.notes[0] == "model 4 (histogram)"
+        peer.health_until(proc, lambda h: h.status == "ok")
         v = peer.verification(proc)
         assert v.model_id == 4 and v.chosen >= 0  # the model in use goes on judging
         assert "model_id 1000000000 is outside 1..1000000" in proc.output
@@ -296,8 +298,10 @@ def test_a_worker_without_a_model_keeps_asking_and_takes_a_good_answer_beside_a_
             proc.output
         )
         holders.append(zenoh_session.declare_queryable(key, lambda q: q.reply(key, encode(good))))
-        h = peer.health_until(proc, lambda h: h.notes[0] == "model 4 (histogram)")
-        assert h.status == "ok" and h.reasons == []
+        peer.health_until(proc, lambda h: h.notes[0] == "model 4 (histogram)")
+        # the period it was recovered in also refused the rogue answer; then all is well
+        h = peer.health_until(proc, lambda h: h.status == "ok")
+        assert h.reasons == [] and h.notes[0] == "model 4 (histogram)"
         assert peer.verification(proc).model_id == 4
         proc.signal(signal.SIGTERM)
         assert proc.wait(10) == 0, proc.output

@@ -331,7 +331,9 @@ def test_a_rogue_model_is_refused_and_the_model_in_use_stays(model_file):
         rig.put("perception/target_model", m)
     assert rig.svc.model.model_id == 4 and rig.svc.model_id == 4
     h = rig.node.health()
-    assert h.rejected["perception/target_model"] == 4 and h.status == "ok"
+    assert h.rejected["perception/target_model"] == 4
+    assert h.reasons == ["rejected 4 perception/target_model (model wrong_verifier)"]
+    assert rig.node.health().status == "ok"  # the next period: nothing wrong, a model in use
     c = rig.svc.counts
     assert c["model_non_finite"] == 1 and c["model_bad_model_id"] == 1
     assert c["model_bad_features"] == 1 and c["model_wrong_verifier"] == 1
