@@ -403,9 +403,9 @@ def build_model(verifier: Verifier, camera: Camera, acq: Acquisition, model_id: 
 
 # --------------------------------------------------------------------------- files
 
-#: Default bound on a model file's size: a model holds the pixels it was learnt from
-#: (histogram verifier), ~0.1 MB at 320 x 240 and ~1.3 MB for a person filling a 1280 x 720
-#: frame.
+#: Default bound on a model file's size: a histogram model holds the pixels it was learnt
+#: from (0.1 MB for the simulator's 135 x 240 px person in a 320 x 240 frame; a whole
+#: 1280 x 720 frame would be 2.8 MB).
 MAX_MODEL_BYTES = 4 * 1024 * 1024
 
 #: What a model name may be: a plain file name, no folder, not hidden (so never "." or "..").
