@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 # Arguments passed through to the CLI, e.g. `make demo ARGS="--duration 10"`.
 ARGS   ?=
 
-.PHONY: all test lint format bench demo soak schemas clean opencv-data
+.PHONY: all test lint format bench demo soak chaos schemas clean opencv-data
 
 all: test
 
@@ -42,6 +42,11 @@ demo: $(STAMP)
 # Long run: FOLLOWBOT_SOAK_S (default 60) seconds at FOLLOWBOT_SOAK_RATE (default 200) scans/s.
 soak: $(STAMP)
 	$(BIN)/python -m pytest -q -s -m soak --run-soak --timeout=0 tests/test_soak.py $(ARGS)
+
+# Start-up check: FOLLOWBOT_CHAOS_STARTS (default 50) consecutive `followbot up compose/sim.yaml`,
+# each service seeing every other within 5 s every time; prints the starts and the worst time.
+chaos: $(STAMP)
+	$(BIN)/python -m pytest -q -s -m chaos --run-chaos --timeout=0 tests/test_up.py $(ARGS)
 
 # Real pedestrian footage for the vision tests: Debian's opencv-doc (examples/data/vtest.avi),
 # unpacked once into a cache outside the clone. Needs apt-get (Debian/Ubuntu).

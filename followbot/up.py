@@ -494,11 +494,16 @@ def main(argv: list[str] | None = None) -> int:
         child.router_at = router_at
         children.append(child)
     # Validate every service's merged settings and files the way the service itself will.
+    # All at once: each is a Python start-up, some load models.
     checks = {}
     for c in children:
         cmd = [sys.executable, "-m", "followbot", "run", c.service, "--config", str(c.config)]
-        checks[c.name] = subprocess.run([*cmd, "--print-settings"], capture_output=True, text=True)
-    bad = {n: r.stderr.strip() for n, r in checks.items() if r.returncode != 0}
+        checks[c.name] = subprocess.Popen(
+            [*cmd, "--print-settings"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+    errors = {n: proc.communicate()[1] for n, proc in checks.items()}
+    bad = {n: errors[n].strip() for n, proc in checks.items() if proc.returncode != 0}
     if bad:
         for n, err in bad.items():
             print(f"followbot up: services.{n}: {err}", file=sys.stderr)

@@ -20,15 +20,20 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 
 def pytest_addoption(parser):
     parser.addoption("--run-soak", action="store_true", help="run the long soak tests")
+    parser.addoption("--run-chaos", action="store_true", help="run the long start-up checks")
 
 
 def pytest_collection_modifyitems(config, items):
-    if config.getoption("--run-soak"):
-        return
-    skip = pytest.mark.skip(reason="soak test: opt in with `make soak` (--run-soak)")
-    for item in items:
-        if "soak" in item.keywords:
-            item.add_marker(skip)
+    for marker, option, target in (
+        ("soak", "--run-soak", "soak"),
+        ("chaos", "--run-chaos", "chaos"),
+    ):
+        if config.getoption(option):
+            continue
+        skip = pytest.mark.skip(reason=f"{marker} test: opt in with `make {target}` ({option})")
+        for item in items:
+            if marker in item.keywords:
+                item.add_marker(skip)
 
 
 @pytest.fixture
