@@ -5,9 +5,10 @@ Before anything starts, every service checks its merged settings and every file 
 
 Topology: services whose settings name no Zenoh endpoints become clients of a router that
 ``up`` starts first (on a free loopback port, or the compose file's ``router.listen``) and
-waits for, so no service can start cut off from the others. The router also joins this
-machine's loopback rendezvous (Zenoh's embedded default), so ``followbot status``, ``target``,
-``replay`` ... started with no flags reach the deployment. Services whose settings name
+waits for, so no service can start cut off from the others. The router (the router service
+in peer mode) is also a member of this machine's loopback rendezvous mesh (Zenoh's embedded
+default), so ``followbot status``, ``target``, ``replay`` ... started with no flags reach the
+deployment. Services whose settings name
 endpoints keep them; router-mode services among them start first.
 
 Then ``up`` refuses to start a service whose name is already alive on the bus (another
@@ -364,21 +365,23 @@ def _signal(pid: int, sig: int) -> None:
 
 
 def _write_router_settings(log_dir: Path, robot: str, listen: str, hub: bool) -> Path:
-    """The settings file of the router `up` starts: it listens on ``listen`` and joins this
-    machine's rendezvous, so that processes started with no flags reach the deployment:
-    ``hub`` binds the rendezvous too, else the router connects to it and keeps retrying
-    (a zenoh JSON5 file: connect/timeout_ms -1, which the settings cannot say)."""
+    """The settings file of the router `up` starts: the router service in peer mode, serving
+    its clients on ``listen`` and a member of this machine's rendezvous mesh, so processes
+    started with no flags reach the deployment (a Zenoh router linked to the rendezvous would
+    not reach the mesh's other peers: services/runtime/router.py). ``hub`` binds the rendezvous
+    too, failing if another process has it; else the router connects to the rendezvous and
+    keeps retrying. Both through a zenoh JSON5 file: the settings cannot say either."""
     from followbot.services.runtime.settings import DEFAULT_ENDPOINT
 
-    zenoh: dict = {"mode": "router", "listen": [listen], "connect": []}
+    zenoh: dict = {"mode": "peer", "listen": [listen], "connect": []}
     if hub:
         zenoh["listen"].append(DEFAULT_ENDPOINT)
+        conf = {"listen": {"exit_on_failure": True}}
     else:
-        conf = log_dir / f"{ROUTER}.zenoh.json5"
-        conf.write_text(
-            json.dumps({"connect": {"endpoints": [DEFAULT_ENDPOINT], "timeout_ms": -1}}) + "\n"
-        )
-        zenoh["config"] = str(conf)
+        conf = {"connect": {"endpoints": [DEFAULT_ENDPOINT], "timeout_ms": -1}}
+    path = log_dir / f"{ROUTER}.zenoh.json5"
+    path.write_text(json.dumps(conf) + "\n")
+    zenoh["config"] = str(path)
     path = log_dir / f"{ROUTER}.settings.yaml"
     path.write_text(yaml.safe_dump({"robot": robot, "zenoh": zenoh}, sort_keys=False))
     return path

@@ -313,6 +313,53 @@ def test_plain_processes_started_together_find_each_other(tmp_path):
             assert min(got) > 0, f"start {run}: a monitor received nothing: {got}"
 
 
+@needs_netns
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("held_first", [False, True], ids=["up-binds-it", "a-peer-held-it"])
+def test_tools_with_no_flags_reach_the_deployment_through_the_rendezvous(tmp_path, held_first):
+    """up's router joins this machine's rendezvous, whether it binds it or a plain process
+    held it first: a publisher and `followbot status` started with no flags reach up's
+    services (a Zenoh router linked to the rendezvous peer did not: it only heard that peer)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1", RUST_LOG="error")
+    compose = write(tmp_path, """
+robot: r1
+services:
+  monitor: {settings: {topics: [sensors/scan], report_period_s: 0.5}}
+""")  # fmt: skip
+    procs = []
+
+    def start(*args: str, log: str) -> subprocess.Popen:
+        argv = host.argv(sys.executable, "-m", "followbot", *args)
+        with (tmp_path / log).open("w") as fh:
+            p = subprocess.Popen(argv, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        procs.append(p)
+        return p
+
+    with one_host() as host:
+        try:
+            if held_first:  # another robot's plain process holds the rendezvous
+                start("run", "monitor", "--robot", "r0", log="first.log")
+                _wait_for(tmp_path / "first.log", r"monitor up", 60)
+            up = start("up", str(compose), "--log-dir", str(tmp_path / "logs"), log="up.log")
+            _wait_for(tmp_path / "up.log", r"started monitor", 60)
+            start("run", "synthetic", "--robot", "r1", "--set", "scan_rate_hz=20", log="syn.log")
+            _wait_for(tmp_path / "up.log", r"monitor\s+\| .*sensors/scan: \d+ received, [1-9]", 60)
+            out = subprocess.run(
+                host.argv(sys.executable, "-m", "followbot", "status", "--robot", "r1"),
+                capture_output=True, text=True, env=env, timeout=60,
+            )  # fmt: skip
+            assert out.returncode == 0, out.stdout + out.stderr
+            listed = {ln.split()[0] for ln in out.stdout.splitlines()[1:]}
+            assert listed == {"monitor", "router", "synthetic"}, out.stdout
+            up.send_signal(signal.SIGINT)
+            assert up.wait(30) == 0
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+
+
 # --------------------------------------------------------------------------- make chaos
 
 

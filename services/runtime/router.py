@@ -7,6 +7,11 @@ peers with ``--connect``. It publishes Health and a liveliness token like any se
 
     followbot run router                                   # tcp/0.0.0.0:7447
     followbot run router --listen tcp/127.0.0.1:7500       # loopback only, another port
+
+In peer mode (``--mode peer``) it is a member of a peer mesh that also serves clients on its
+listen endpoints: ``followbot up`` runs it so, joined to this machine's rendezvous, as the
+hub its services connect to. A Zenoh router linked to one peer of a mesh does not reach that
+peer's other peers (measured with zenoh 1.10: no data or liveliness crossed); a peer does.
 """
 
 from __future__ import annotations
@@ -29,9 +34,13 @@ class RouterSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
 
 
 def setup(node: Node, settings: RouterSettings) -> None:
-    if settings.zenoh.mode != "router":
-        raise ValueError(f"the router service needs zenoh.mode=router, got {settings.zenoh.mode}")
-    node.log.info("routing on %s", ", ".join(settings.zenoh.listen) or "(no listen endpoint)")
+    if settings.zenoh.mode == "client":
+        raise ValueError("the router service needs zenoh.mode=router (or peer), got client")
+    node.log.info(
+        "routing (%s mode) on %s",
+        settings.zenoh.mode,
+        ", ".join(settings.zenoh.listen) or "(no listen endpoint)",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
