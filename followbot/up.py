@@ -168,6 +168,8 @@ class Supervisor:
             deadline = time.monotonic() + ROUTER_START_S
             pending = list(c.router_at)
             while pending:
+                if self._stop:  # Ctrl-C while waiting: run() stops what was started
+                    return
                 if c.proc.poll() is not None and c.fallback is not None:
                     c.reader.join(timeout=2)
                     c.fallback()
@@ -269,7 +271,8 @@ class Supervisor:
                 self.start_routers()
                 if open_watch is not None:
                     self.watch = open_watch()
-                self.check_alive(replace)
+                if not self._stop:
+                    self.check_alive(replace)
             except Refused as exc:
                 print(f"followbot up: {exc}", file=sys.stderr, flush=True)
                 self.stop_all()
