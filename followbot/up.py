@@ -303,7 +303,7 @@ class Supervisor:
                         self.stop_all()
                         return 0
                     if code == 2:
-                        self.say("up", f"{c.name} exited 2 (bad settings); not restarting")
+                        self.say("up", f"{c.name} exited 2 (bad settings or files); not restarting")
                         c.failed = True
                     elif (code == 0 and c.restart != "always") or (
                         code != 0 and c.restart == "never"
