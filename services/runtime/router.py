@@ -37,9 +37,9 @@ def setup(node: Node, settings: RouterSettings) -> None:
     if settings.zenoh.mode == "client":
         raise ValueError("the router service needs zenoh.mode=router (or peer), got client")
     node.log.info(
-        "routing (%s mode) on %s",
-        settings.zenoh.mode,
+        "routing on %s (%s mode)",
         ", ".join(settings.zenoh.listen) or "(no listen endpoint)",
+        settings.zenoh.mode,
     )
 
 
