@@ -104,6 +104,43 @@ services:
         up.close()
 
 
+@pytest.mark.multiprocess
+def test_a_second_up_of_a_running_deployment_is_refused_and_starts_once_the_first_is_killed(
+    tmp_path, robot
+):
+    """The deployment has no endpoints (each up starts its own router; the routers meet at
+    this machine's rendezvous). A second up names the first one's services; after SIGKILL
+    of the first up its services are gone, and the second starts alone."""
+    compose = write(tmp_path, f"""
+robot: {robot}
+services:
+  synthetic: {{settings: {{scan_rate_hz: 20}}}}
+  monitor: {{settings: {{report_period_s: 0.5}}}}
+""")  # fmt: skip
+    first = Up(compose, tmp_path / "logs1")
+    try:
+        pids = {n: first.expect(rf"started {n} \(pid (\d+)\)", timeout=60).group(1)
+                for n in ("synthetic", "monitor")}  # fmt: skip
+        ok = {first.expect(r"^up\s+\| (monitor|synthetic) ok$").group(1) for _ in range(2)}
+        assert ok == {"monitor", "synthetic"}
+        out = followbot("up", str(compose), "--log-dir", str(tmp_path / "logs2"), timeout=60)
+        assert out.returncode == 1, out.stdout + out.stderr
+        for name, pid in pids.items():
+            assert f"{name} (host {socket.gethostname()}, pid {pid})" in out.stderr
+        first.p.send_signal(signal.SIGKILL)
+        first.p.wait(5)
+        assert not wait_gone([int(p) for p in pids.values()], timeout=8)
+        second = Up(compose, tmp_path / "logs3")
+        try:
+            second.expect(r"started monitor", timeout=60)
+            second.expect(r"^monitor\s+\| .*sensors/scan: \d+ received, [1-9]")
+            second.interrupt()
+        finally:
+            second.close()
+    finally:
+        first.close()
+
+
 # --------------------------------------------------------------------------- lifetime
 
 
