@@ -220,6 +220,25 @@ services:
     assert "services.sim" in out.stderr
 
 
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [(None, "no learned leg model at"), ("not a model\n", "cannot load the learned leg model")],
+    ids=["missing", "garbage"],
+)
+def test_up_check_loads_a_learned_detectors_model_file(tmp_path, content, message):
+    model = tmp_path / "legs.yml"
+    if content is not None:
+        model.write_text(content)
+    compose = write(tmp_path, f"""
+services:
+  laser_legs: {{settings: {{detector: learned, detector_settings: {{model_path: {model}}}}}}}
+""")  # fmt: skip
+    out = followbot("up", str(compose), "--check", "--log-dir", str(tmp_path / "logs"))
+    assert out.returncode == 2, out.stdout
+    assert "services.laser_legs" in out.stderr and message in out.stderr
+    assert str(model) in out.stderr
+
+
 @pytest.mark.multiprocess
 def test_a_stop_all_on_exit_service_that_fails_at_start_stops_the_deployment(tmp_path, robot):
     # monitor's topics are checked when it starts (setup): it passes up's check, exits 2
