@@ -1,8 +1,9 @@
 """Reading recordings: followbot MCAP files, ROS 1 bags and ROS 2 bags, as one message stream.
 
 :func:`open_recording` returns a :class:`Recording` whose :meth:`~Recording.messages` yields
-``(log_time_ns, topic, message)`` in log-time order, ``topic`` being a followbot topic (after
-remapping) and ``message`` a validated followbot message. ROS messages are converted:
+``(log_time_ns, topic, message)`` in log-time order (an MCAP without its index: in the order
+the recorder wrote them), ``topic`` being a followbot topic (after remapping) and ``message`` a
+validated followbot message. ROS messages are converted:
 
 =============================  ================================================
 ROS type                       followbot message
@@ -17,18 +18,26 @@ A ROS header stamp of 0 (some recorders leave it unset) is replaced by the bag's
 By default a ROS topic is mapped by its message type when that type has exactly one topic in
 the file (``/scan`` → ``sensors/scan``); otherwise ``--remap SRC=DST`` says which. Messages
 that fail conversion or validation are skipped and counted, never fatal.
+
+A damaged MCAP (cut short, a recorder killed, a bad chunk) is read up to the damage, and so
+is a ROS 1 bag whose index is missing or cut (:class:`Ros1Stream`): :attr:`Recording.damage`
+then says how much was read and why it stopped.
+:meth:`Recording.select` narrows what is replayed (by default to the sensor topics).
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 import numpy as np
 
+from followbot.mcapio import Damage
 from followbot.schemas import (
     TOPICS,
     Image,
@@ -40,7 +49,18 @@ from followbot.schemas import (
     topic_type,
 )
 
-__all__ = ["Recording", "RecordingError", "open_recording", "parse_remaps"]
+__all__ = [
+    "SENSOR_PATTERNS",
+    "Recording",
+    "RecordingError",
+    "Ros1Stream",
+    "open_recording",
+    "parse_remaps",
+]
+
+#: What a replay sends by default: sensor input only. A live pipeline makes its own
+#: perception, tracking and commands; replaying recorded ones would double them.
+SENSOR_PATTERNS = ("sensors/*",)
 
 #: ROS message type -> the followbot topic it feeds by default.
 ROS_DEFAULT_TOPIC = {
@@ -75,10 +95,60 @@ class Recording:
     kind: str  # "mcap" | "ros"
     #: source topic -> followbot topic, for the topics that will be replayed
     mapping: dict[str, str]
-    #: source topic -> (type name, message count) for everything in the file
+    #: source topic -> (type name, message count) for everything in the file (of a damaged
+    #: file: what can be read)
     contents: dict[str, tuple[str, int]]
     skipped: Counter = field(default_factory=Counter)
     """Messages not replayed, by reason."""
+    left_out: dict[str, str] = field(default_factory=dict)
+    """Source topics not replayed: why, one line each."""
+    damage: Damage | None = None
+    """Where the file stops being readable: known on opening a file read without its index,
+    else found (and set) by :meth:`messages` when it reaches the damage."""
+    indexed: bool = True
+    """The file's index is intact and read through (MCAP: in log-time order); else the file
+    is read front to back."""
+    index_problem: str = ""
+    """Why the index of a ROS 1 bag read front to back could not be used."""
+
+    def select(self, include: list[str] | None = None, exclude: list[str] | None = None) -> None:
+        """Replay only the topics matching a pattern of ``include`` (default
+        :data:`SENSOR_PATTERNS`) and none of ``exclude``.
+
+        A pattern (``fnmatch``: ``*``, ``?``, ``[...]``) matches a topic when it matches its
+        source name or the followbot topic it feeds. A pattern of ``include`` that matches no
+        topic of the file is an error (a typo would otherwise replay nothing of it).
+        """
+        patterns = list(include) if include is not None else list(SENSOR_PATTERNS)
+
+        def matches(pattern: str, src: str) -> bool:
+            return fnmatchcase(src, pattern) or fnmatchcase(self.mapping[src], pattern)
+
+        if include is not None:
+            for pattern in patterns:
+                if not any(matches(pattern, src) for src in self.mapping):
+                    raise RecordingError(
+                        f"{self.path}: --topics {pattern!r} matches no topic the file can "
+                        f"replay; it has: {', '.join(sorted(self.mapping)) or 'none'}"
+                    )
+        for src in list(self.mapping):
+            if not any(matches(p, src) for p in patterns):
+                self.left_out[src] = (
+                    "not sensor input (a live pipeline makes its own; --topics or "
+                    "--all-topics replays it)"
+                    if include is None
+                    else "not chosen by --topics"
+                )
+            elif any(matches(p, src) for p in exclude or []):
+                self.left_out[src] = "--exclude"
+            else:
+                continue
+            del self.mapping[src]
+        if not self.mapping:
+            raise RecordingError(
+                f"{self.path}: nothing left to replay: "
+                + "; ".join(f"{src}: {why}" for src, why in sorted(self.left_out.items()))
+            )
 
     def messages(self) -> Iterator[tuple[int, str, Message]]:
         if self.kind == "mcap":
@@ -89,31 +159,51 @@ class Recording:
     # ------------------------------------------------------------------ followbot MCAP
 
     def _mcap_messages(self) -> Iterator[tuple[int, str, Message]]:
-        from mcap.exceptions import McapError
-        from mcap.reader import make_reader
+        from followbot.mcapio import McapStream
 
-        n = 0
+        if not self.indexed:
+            stream = McapStream(self.path)
+            for topic, _schema, msg in stream.messages(self.mapping):
+                message = self._decoded(topic, msg.data)
+                if message is not None:
+                    yield msg.log_time, self.mapping[topic], message
+            self.damage = stream.damage
+            return
+        from mcap.reader import SeekingReader
+
+        n, first, last = 0, None, None
         with self.path.open("rb") as f:
-            try:
-                for _schema, channel, msg in make_reader(f).iter_messages(
-                    topics=list(self.mapping)
-                ):
-                    dst = self.mapping[channel.topic]
-                    try:
-                        message = decode(topic_type(dst), msg.data)
-                    except RejectedMessage:
-                        self.skipped["invalid payload"] += 1
-                        continue
-                    n += 1
-                    yield msg.log_time, dst, message
-            except (McapError, EOFError, OSError, ValueError) as exc:
-                raise RecordingError(
-                    f"{self.path}: truncated or corrupt after {n} messages ({exc})"
-                ) from None
+            items = SeekingReader(f, validate_crcs=True).iter_messages(topics=list(self.mapping))
+            while True:
+                try:
+                    _schema, channel, msg = next(items)
+                except StopIteration:
+                    return
+                except Exception as exc:  # the parser's own errors, struct, zstd, ... on bad bytes
+                    size = self.path.stat().st_size
+                    why = f"a damaged chunk ({type(exc).__name__}: {exc})"
+                    self.damage = Damage(why, n, first, last, size)
+                    return
+                n += 1
+                first = msg.log_time if first is None else min(first, msg.log_time)
+                last = msg.log_time if last is None else max(last, msg.log_time)
+                message = self._decoded(channel.topic, msg.data)
+                if message is not None:
+                    yield msg.log_time, self.mapping[channel.topic], message
+
+    def _decoded(self, src: str, data: bytes) -> Message | None:
+        try:
+            return decode(topic_type(self.mapping[src]), data)
+        except RejectedMessage:
+            self.skipped["invalid payload"] += 1
+            return None
 
     # ------------------------------------------------------------------ ROS bags
 
     def _ros_messages(self) -> Iterator[tuple[int, str, Message]]:
+        if not self.indexed:
+            yield from self._ros1_stream_messages()
+            return
         from rosbags.highlevel import AnyReader
 
         try:
@@ -135,6 +225,24 @@ class Recording:
         except Exception as exc:  # rosbags raises its own error types per format
             raise RecordingError(f"{self.path}: cannot read the bag: {exc}") from None
 
+    def _ros1_stream_messages(self) -> Iterator[tuple[int, str, Message]]:
+        from rosbags.typesys import Stores, get_typestore
+
+        # the standard message definitions (the bag's own are in the index, which is gone)
+        store = get_typestore(Stores.ROS1_NOETIC)
+        stream = Ros1Stream(self.path, why_not_indexed=self.index_problem)
+        for topic, msgtype, t_ns, raw in stream.messages(self.mapping):
+            try:
+                message = convert(msgtype, store.deserialize_ros1(raw, msgtype), t_ns)
+            except Exception as exc:  # a definition that differs, bytes that do not parse
+                self.skipped[f"{topic}: {type(exc).__name__}: {exc}"[:120]] += 1
+                continue
+            if message is None:
+                self.skipped[f"{topic}: unsupported {msgtype}"] += 1
+                continue
+            yield t_ns, self.mapping[topic], message
+        self.damage = stream.damage
+
 
 def open_recording(path: str | Path, remaps: dict[str, str] | None = None) -> Recording:
     """Open ``path`` (followbot .mcap, ROS 1 .bag, or a ROS 2 bag folder) and plan the mapping."""
@@ -144,7 +252,7 @@ def open_recording(path: str | Path, remaps: dict[str, str] | None = None) -> Re
         raise RecordingError(f"{path}: no such file or folder")
     if path.is_file() and path.suffix == ".mcap":
         return _open_mcap(path, remaps)
-    if (path.is_file() and path.suffix == ".bag") or path.is_dir():
+    if (path.is_file() and path.name.endswith((".bag", ".bag.active"))) or path.is_dir():
         return _open_ros(path, remaps)
     raise RecordingError(
         f"{path}: not a recording followbot reads (a followbot .mcap, a ROS 1 .bag, "
@@ -153,66 +261,59 @@ def open_recording(path: str | Path, remaps: dict[str, str] | None = None) -> Re
 
 
 def _open_mcap(path: Path, remaps: dict[str, str]) -> Recording:
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
+    from mcap.reader import SeekingReader
 
+    from followbot.mcapio import McapStream, check_magic
+
+    problem = check_magic(path)
+    if problem:
+        raise RecordingError(f"{path}: not a readable MCAP file ({problem})")
     try:
         with path.open("rb") as f:
-            reader = make_reader(f)
-            summary = reader.get_summary()
-            if summary is None:
-                # No index (the writer did not finish): count by streaming, which also finds
-                # where the file breaks.
-                contents, truncated = _scan_unindexed(path)
-            else:
-                counts = summary.statistics.channel_message_counts if summary.statistics else {}
-                contents = {
-                    ch.topic: (summary.schemas[ch.schema_id].name if ch.schema_id else "",
-                               counts.get(ch.id, 0))
-                    for ch in summary.channels.values()
-                }  # fmt: skip
-                foreign = [
-                    ch.topic for ch in summary.channels.values() if ch.message_encoding != "msgpack"
-                ]
-                if foreign:
-                    raise RecordingError(
-                        f"{path}: channels {foreign} are not followbot messages (encoding "
-                        "is not msgpack); for a ROS 2 MCAP bag pass its bag folder"
-                    )
-                truncated = False
-    except (McapError, EOFError, OSError) as exc:
-        raise RecordingError(f"{path}: not a readable MCAP file ({exc})") from None
-    mapping = {}
+            summary = SeekingReader(f).get_summary()
+    except Exception:  # cut short or damaged at the end: no index to trust, read front to back
+        summary = None
+    damage = None
+    indexed = summary is not None and bool(summary.chunk_indexes)
+    if indexed:
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        contents = {
+            ch.topic: (summary.schemas[ch.schema_id].name if ch.schema_id else "",
+                       counts.get(ch.id, 0))
+            for ch in summary.channels.values()
+        }  # fmt: skip
+        encodings = {ch.topic: ch.message_encoding for ch in summary.channels.values()}
+    else:
+        # No index (the writer did not finish, or the file was cut): count by streaming,
+        # which also finds where the file breaks.
+        stream = McapStream(path)
+        counts = Counter(topic for topic, _, _ in stream.messages())
+        contents = {t: (schema, counts[t]) for t, (schema, _) in stream.channels.items()}
+        encodings = {t: enc for t, (_, enc) in stream.channels.items()}
+        damage = stream.damage
+        if damage is not None and not damage.messages:
+            raise RecordingError(f"{path}: no message could be read: {damage.reason}")
+    foreign = sorted(t for t, enc in encodings.items() if enc != "msgpack")
+    if foreign:
+        raise RecordingError(
+            f"{path}: channels {foreign} are not followbot messages (encoding "
+            "is not msgpack); for a ROS 2 MCAP bag pass its bag folder"
+        )
+    mapping, left_out = {}, {}
     for src in contents:
         dst = remaps.pop(src, src)
         if dst in TOPICS or dst.startswith("health/"):
             mapping[src] = dst
+        else:
+            left_out[src] = "not a followbot topic"
     if remaps:
         raise RecordingError(
             f"{path}: no topic {sorted(remaps)} in the file; it has {sorted(contents)}"
         )
     if not mapping:
         raise RecordingError(f"{path}: no followbot topics in the file ({sorted(contents)})")
-    rec = Recording(path, "mcap", mapping, contents)
-    if truncated:
-        rec.skipped["file truncated: messages after the break"] += 1
-    return rec
-
-
-def _scan_unindexed(path: Path) -> tuple[dict[str, tuple[str, int]], bool]:
-    from mcap.exceptions import McapError
-    from mcap.reader import NonSeekingReader
-
-    counts: Counter = Counter()
-    names: dict[str, str] = {}
-    with path.open("rb") as f:
-        try:
-            for schema, channel, _msg in NonSeekingReader(f).iter_messages():
-                counts[channel.topic] += 1
-                names[channel.topic] = schema.name if schema else ""
-        except (McapError, EOFError, ValueError):
-            return {t: (names[t], n) for t, n in counts.items()}, True
-    return {t: (names[t], n) for t, n in counts.items()}, False
+    return Recording(path, "mcap", mapping, contents, left_out=left_out, damage=damage,
+                     indexed=indexed)  # fmt: skip
 
 
 def _open_ros(path: Path, remaps: dict[str, str]) -> Recording:
@@ -220,11 +321,22 @@ def _open_ros(path: Path, remaps: dict[str, str]) -> Recording:
         from rosbags.highlevel import AnyReader
     except ImportError:  # pragma: no cover - rosbags is a dependency
         raise RecordingError("reading ROS bags needs the rosbags package") from None
+    damage, index_problem = None, ""
     try:
         with AnyReader([path]) as reader:
             contents = {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
     except Exception as exc:
-        raise RecordingError(f"{path}: cannot read the bag: {exc}") from None
+        if not path.is_file():
+            raise RecordingError(f"{path}: cannot read the bag: {exc}") from None
+        # A ROS 1 bag whose index is missing (a recorder killed: .bag.active) or cut off:
+        # read it front to back instead, up to where it breaks.
+        index_problem = str(exc)
+        stream = Ros1Stream(path, why_not_indexed=index_problem)
+        counts = Counter(topic for topic, _, _, _ in stream.messages())
+        contents = {t: (msgtype, counts[t]) for t, msgtype in stream.connections.items()}
+        damage = stream.damage
+        if damage is not None and not damage.messages:
+            raise RecordingError(f"{path}: no message could be read: {damage.reason}") from None
     missing = sorted(set(remaps) - set(contents))
     if missing:
         raise RecordingError(
@@ -259,7 +371,201 @@ def _open_ros(path: Path, remaps: dict[str, str]) -> Recording:
             f"{', '.join(sorted(ROS_DEFAULT_TOPIC))}); the bag has: "
             + ", ".join(f"{t} ({ty})" for t, (ty, _) in sorted(contents.items()))
         )
-    return Recording(path, "ros", mapping, contents)
+    left_out = {
+        src: f"no conversion of {msgtype} to a followbot message"
+        if msgtype not in ROS_DEFAULT_TOPIC
+        else f"another {msgtype} topic feeds {ROS_DEFAULT_TOPIC[msgtype]}"
+        for src, (msgtype, _) in contents.items()
+        if src not in mapping
+    }
+    return Recording(path, "ros", mapping, contents, left_out=left_out, damage=damage,
+                     indexed=damage is None, index_problem=index_problem)  # fmt: skip
+
+
+# --------------------------------------------------------------------------- ROS 1, no index
+
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+_OP_MESSAGE, _OP_BAG_HEADER, _OP_CHUNK, _OP_CONNECTION = 0x02, 0x03, 0x05, 0x07
+
+
+class _Cut(EOFError):
+    """The bytes end inside a record."""
+
+
+class Ros1Stream:
+    """A ROS 1 bag (format 2.0) read front to back without its index, up to the first record
+    it cannot read.
+
+    For bags ``rosbags`` refuses because the index at the end is missing (``rosbag record``
+    killed leaves a ``.bag.active`` never indexed) or cut off. A bag is a sequence of
+    records, each a header of ``name=value`` fields (``op`` says which record) and a data
+    block; chunks (compressed ``none``, ``bz2`` or ``lz4``) hold connection records (topic,
+    type) and message records (connection, time, serialized message). :meth:`messages` yields
+    the messages in file order and then sets :attr:`damage` (always, as the index is unusable).
+    """
+
+    def __init__(self, path: Path, why_not_indexed: str = "") -> None:
+        self.path = path
+        self.why_not_indexed = why_not_indexed
+        self.damage: Damage | None = None
+        #: topic -> ROS message type (``sensor_msgs/msg/LaserScan``) of every connection met
+        self.connections: dict[str, str] = {}
+
+    def messages(self, topics=None) -> Iterator[tuple[str, str, int, bytes]]:
+        """``(topic, ROS message type, receive time ns, serialized message)`` of ``topics``."""
+        size = self.path.stat().st_size
+        conns: dict[int, tuple[str, str]] = {}
+        n, first, last = 0, None, None
+        index_pos = 0
+        cut = ""
+        with self.path.open("rb") as f:
+            if f.read(len(ROS1_MAGIC)) != ROS1_MAGIC:
+                raise RecordingError(f"{self.path}: not a ROS 1 bag of format 2.0 (bad magic)")
+            good = f.tell()
+            while f.tell() < size and not cut:
+                try:
+                    header, data, cut = _ros1_record(f)
+                    op = _ros1_op(header)
+                    if op == _OP_BAG_HEADER:
+                        index_pos = struct.unpack("<Q", header["index_pos"])[0]
+                    if op == _OP_CHUNK:
+                        # an uncompressed chunk cut short still holds whole records up to the cut
+                        if cut and header["compression"] != b"none":
+                            raise _Cut(cut)
+                        records = list(_ros1_records(_ros1_chunk_data(header, data), bool(cut)))
+                    elif cut:
+                        raise _Cut(cut)
+                    else:
+                        records = [(header, data)]
+                    out = []
+                    for h, d in records:
+                        op = _ros1_op(h)
+                        if op == _OP_CONNECTION:
+                            topic = h["topic"].decode()
+                            msgtype = _ros2_name(_ros1_fields(d)["type"].decode())
+                            conns[struct.unpack("<I", h["conn"])[0]] = (topic, msgtype)
+                            self.connections[topic] = msgtype
+                        elif op == _OP_MESSAGE:
+                            topic, msgtype = conns.get(struct.unpack("<I", h["conn"])[0], ("", ""))
+                            if topic and (topics is None or topic in topics):
+                                sec, nsec = struct.unpack("<II", h["time"])
+                                out.append((topic, msgtype, sec * 1_000_000_000 + nsec, d))
+                except Exception as exc:  # struct, bz2, lz4, KeyError, ... on bad bytes
+                    why = _ros1_why_it_stopped(exc, f.tell(), good, size, index_pos)
+                    self.damage = Damage(why, n, first, last, size, good)
+                    return
+                if not cut:
+                    good = f.tell()
+                for item in out:
+                    n += 1
+                    first = item[2] if first is None else min(first, item[2])
+                    last = item[2] if last is None else max(last, item[2])
+                    yield item
+        if cut:
+            why = (
+                f"the file ends inside an uncompressed chunk (at byte {size}): it was cut short "
+                "(a recorder killed mid-write, a full disk or an interrupted copy); the messages "
+                "before the cut were read"
+            )
+        elif index_pos == 0:
+            why = (
+                "the bag was never indexed: its recorder did not finish it (a killed "
+                "`rosbag record` leaves such a .bag.active); every message was read"
+            )
+        elif index_pos >= size:
+            why = "the file ends before the bag's index: it was cut short at a record boundary"
+        else:
+            why = f"the bag's index is unusable ({self.why_not_indexed}); every message was read"
+        self.damage = Damage(why, n, first, last, size, size if cut else good)
+
+
+def _ros1_fields(buf: bytes) -> dict[str, bytes]:
+    """A record header (or connection header): fields of ``<uint32 length>name=value``."""
+    out, i = {}, 0
+    while i < len(buf):
+        (length,) = struct.unpack_from("<I", buf, i)
+        i += 4
+        if i + length > len(buf):
+            raise ValueError("a header field runs past the end of its header")
+        name, eq, value = buf[i : i + length].partition(b"=")
+        if not eq:
+            raise ValueError("a header field without '='")
+        out[name.decode()] = value
+        i += length
+    return out
+
+
+def _ros1_read(f, length: int) -> bytes:
+    data = f.read(length)
+    if len(data) < length:
+        raise _Cut(f"{length - len(data)} bytes missing")
+    return data
+
+
+def _ros1_record(f) -> tuple[dict[str, bytes], bytes, str]:
+    """One record: header fields, data, and why the data is short ("" when whole). A cut in
+    the header or the lengths raises :class:`_Cut`; a cut in the data returns what is there."""
+    (header_len,) = struct.unpack("<I", _ros1_read(f, 4))
+    header = _ros1_fields(_ros1_read(f, header_len))
+    (data_len,) = struct.unpack("<I", _ros1_read(f, 4))
+    data = f.read(data_len)
+    return header, data, f"{data_len - len(data)} bytes missing" if len(data) < data_len else ""
+
+
+def _ros1_records(data: bytes, partial: bool) -> Iterator[tuple[dict[str, bytes], bytes]]:
+    """The records of a chunk's data; ``partial``: the data was cut, stop at the cut."""
+    import io
+
+    buf = io.BytesIO(data)
+    while buf.tell() < len(data):
+        try:
+            header, body, cut = _ros1_record(buf)
+            if cut:
+                raise _Cut(cut)
+        except _Cut:
+            if partial:
+                return
+            raise ValueError("a record runs past the end of its chunk") from None
+        yield header, body
+
+
+def _ros1_op(header: dict[str, bytes]) -> int:
+    op = header.get("op", b"")
+    if len(op) != 1:
+        raise ValueError("a record without its op field")
+    return op[0]
+
+
+def _ros1_chunk_data(header: dict[str, bytes], data: bytes) -> bytes:
+    compression = header["compression"].decode()
+    if compression == "none":
+        return data
+    if compression == "bz2":
+        import bz2
+
+        return bz2.decompress(data)
+    if compression == "lz4":
+        from lz4.frame import decompress
+
+        return decompress(data)
+    raise ValueError(f"chunk compression {compression!r} (reads none, bz2, lz4)")
+
+
+def _ros2_name(ros1_type: str) -> str:
+    """``sensor_msgs/LaserScan`` -> ``sensor_msgs/msg/LaserScan`` (the names rosbags uses)."""
+    package, _, name = ros1_type.rpartition("/")
+    return f"{package}/msg/{name}" if package and "/msg/" not in ros1_type else ros1_type
+
+
+def _ros1_why_it_stopped(exc: Exception, at: int, good: int, size: int, index_pos: int) -> str:
+    if 0 < index_pos <= good:
+        return "the index at the end of the bag is damaged or cut (every message was read)"
+    if isinstance(exc, _Cut) and at >= size:
+        return (
+            f"the file ends inside a record at byte {good}: it was cut short (a recorder killed "
+            "mid-write, a full disk or an interrupted copy)"
+        )
+    return f"unreadable data after byte {good} ({type(exc).__name__}: {exc})"
 
 
 # --------------------------------------------------------------------------- conversions

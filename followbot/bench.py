@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from followbot.schemas import Image, LaserScan, decode, encode
+from followbot.services.runtime.argtypes import positive_float, positive_int
 
 SCAN_BEAMS = 720
 IMAGE_SHAPE = (480, 640, 3)
@@ -92,8 +93,8 @@ def _worker(argv: list[str]) -> int:
     p.add_argument("mode", choices=["bare", "node", "pong"])
     p.add_argument("--endpoint", required=True)
     p.add_argument("--key", required=True)
-    p.add_argument("--count", type=int, required=True)
-    p.add_argument("--timeout", type=float, default=60.0)
+    p.add_argument("--count", type=positive_int, required=True)
+    p.add_argument("--timeout", type=positive_float, default=60.0)
     a = p.parse_args(argv)
     lat: list[int] = []
     if a.mode == "node":

@@ -8,6 +8,7 @@ followbot topics                                                list topics and 
 followbot schemas [--output DIR | --check]                      JSON Schema of messages
 followbot demo                                                  live pipeline smoke
 followbot bench [--json FILE]                                   benchmarks
+followbot appearance VIDEO BOXES [--lags 25,100] ...            a verifier on boxed footage
 """
 
 from __future__ import annotations
@@ -109,9 +110,15 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "eval": ("followbot.eval_cli", "main", "scenarios x presets through the pipeline: report"),
     "sweep": ("followbot.sweep", "main", "every scenario over several seeds: the issues' figures"),
     "track": ("followbot.track", "main", "run the pipeline over a recording; tracks to CSV"),
+    "appearance": (
+        "followbot.appearance",
+        "main",
+        "a verifier on footage with person boxes: does it pick the right person?",
+    ),
     "record": ("followbot.recording", "record_main", "record topics to MCAP"),
     "replay": ("followbot.recording", "replay_main", "replay an MCAP file or a ROS 1/2 bag"),
     "bench": ("followbot.bench", "main", "run the benchmarks"),
+    "certs": ("followbot.certs", "main", "a CA and per-service certificates for secure Zenoh"),
 }
 
 

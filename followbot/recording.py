@@ -4,11 +4,14 @@ Record writes chosen topics to MCAP (the log format Foxglove and ROS 2 read): on
 followbot topic, message encoding ``msgpack`` (the exact validated wire bytes), the message's
 JSON Schema as the channel schema (encoding ``jsonschema``), ``log_time`` = receive time (wall
 clock, ns), ``publish_time`` = the message's ``stamp_ns``. File metadata ``followbot`` holds the
-robot name, the followbot version and the schema version. See docs/recording.md.
+robot name, the followbot version and the schema version. Chunks are flushed to the file at
+least every half second, so a recorder killed outright loses at most that. See
+docs/recording.md.
 
 Replay republishes a followbot MCAP, a ROS 1 bag or a ROS 2 bag folder with the original
 timing (``--rate`` multiplier, ``--rate 0`` as fast as possible), remapping topics and
-converting ROS messages (followbot.bags).
+converting ROS messages (followbot.bags). It sends the sensor topics only unless told
+otherwise, and reads a damaged file up to the damage.
 """
 
 from __future__ import annotations
@@ -20,8 +23,13 @@ import time
 from pathlib import Path
 
 from followbot import progress
+from followbot.services.runtime.argtypes import non_negative_float, positive_float
 
 __all__ = ["record_main", "replay_main"]
+
+#: The recorder ends a chunk and writes it out at least this often (s): a recorder killed
+#: outright loses the messages of at most the last FLUSH_PERIOD_S (+ a timer tick).
+FLUSH_PERIOD_S = 0.5
 
 
 def _node_settings(args: argparse.Namespace):
@@ -48,7 +56,7 @@ def record_main(argv: list[str] | None = None) -> int:
         help="topics to record (default: every data topic; `followbot topics` lists them)",
     )
     p.add_argument("-o", "--output", default="recording.mcap", help="MCAP file to write")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
     add_zenoh_arguments(p)
     args = p.parse_args(argv)
     topics = args.topics or list(TOPICS)
@@ -73,7 +81,7 @@ def _record(topics: list[str], output: Path, duration: float | None, settings) -
     from followbot.services.runtime.node import zenoh_node
 
     with zenoh_node("record", settings) as node:
-        out = McapTopicWriter(output, settings.robot)
+        out = McapTopicWriter(output, settings.robot, flush_period_s=FLUSH_PERIOD_S)
         try:
             for t in topics:
                 node.subscribe(
@@ -90,6 +98,8 @@ def _record(topics: list[str], output: Path, duration: float | None, settings) -
                                f"{size:.1f} MiB")  # fmt: skip
 
             node.every(1.0, show, name="progress")
+            # a quiet topic's last messages reach the file within a flush period too
+            node.every(FLUSH_PERIOD_S / 2, out.flush_if_due, name="flush")
             print(f"recording {len(topics)} topics of robot '{settings.robot}' to {output}; "
                   "Ctrl-C stops", file=sys.stderr)  # fmt: skip
             node.run(duration)
@@ -122,18 +132,34 @@ def replay_main(argv: list[str] | None = None) -> int:
             "Republish a recording: a followbot .mcap, a ROS 1 .bag or a ROS 2 bag folder. "
             "ROS LaserScan, Odometry, Image and CompressedImage are converted."
         ),
+        epilog=REPLAY_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", help="the recording")
     p.add_argument(
-        "--rate", type=float, default=1.0,
+        "--rate", type=non_negative_float, default=1.0,
         help="speed multiplier of the original timing; 0 = as fast as possible (1)",
     )  # fmt: skip
     p.add_argument(
         "--remap", action="append", default=[], metavar="SRC=DST",
         help="feed source topic SRC to followbot topic DST, e.g. /scan=sensors/scan",
     )  # fmt: skip
+    which = p.add_mutually_exclusive_group()
+    which.add_argument(
+        "--topics", action="append", metavar="PATTERN[,PATTERN...]",
+        help="replay only these topics (glob patterns, comma-separated or repeated, matched "
+        "against the file's topic or the followbot topic it feeds; default: sensors/*)",
+    )  # fmt: skip
+    which.add_argument(
+        "--all-topics", action="store_true",
+        help="replay every topic of the file, recorded commands and tracks included",
+    )  # fmt: skip
     p.add_argument(
-        "--wait", type=float, default=5.0, metavar="S",
+        "--exclude", action="append", default=[], metavar="PATTERN[,PATTERN...]",
+        help="leave these topics out (glob patterns, as --topics)",
+    )  # fmt: skip
+    p.add_argument(
+        "--wait", type=non_negative_float, default=5.0, metavar="S",
         help="wait up to S seconds for a subscriber before starting (5)",
     )  # fmt: skip
     p.add_argument(
@@ -141,24 +167,33 @@ def replay_main(argv: list[str] | None = None) -> int:
         help="after each scan, wait for every running stage's answer to it (docs/runtime.md)",
     )  # fmt: skip
     p.add_argument(
-        "--timeout", type=float, default=5.0, metavar="S",
+        "--timeout", type=positive_float, default=5.0, metavar="S",
         help="lock-step: seconds to wait for the stages' answers to one scan (5)",
     )  # fmt: skip
-    p.add_argument("--info", action="store_true", help="print what the file holds and exit")
+    p.add_argument(
+        "--info", action="store_true",
+        help="print what the file holds and what would be replayed, then exit",
+    )  # fmt: skip
     add_zenoh_arguments(p)
     args = p.parse_args(argv)
-    if args.rate < 0:
-        p.error("--rate must be >= 0")
     try:
         rec = open_recording(args.file, parse_remaps(args.remap))
+        include = None if not args.topics else _patterns(args.topics)
+        rec.select(["*"] if args.all_topics else include, _patterns(args.exclude))
     except (RecordingError, ValueError) as exc:
         print(f"followbot replay: {exc}", file=sys.stderr)
         return 2
     print(f"{rec.path} ({rec.kind}):", file=sys.stderr)
     for src, (type_name, n) in sorted(rec.contents.items()):
         dst = rec.mapping.get(src)
-        arrow = f"-> {dst}" if dst else "(not replayed)"
+        arrow = f"-> {dst}" if dst else f"skipped: {rec.left_out.get(src, 'not replayed')}"
         print(f"  {src:<28} {type_name:<32} {n:>7}  {arrow}", file=sys.stderr)
+    print(f"replaying {', '.join(sorted(rec.mapping))}"
+          + (f"; skipping {', '.join(sorted(rec.left_out))}" if rec.left_out else ""),
+          file=sys.stderr)  # fmt: skip
+    if rec.damage is not None:
+        print(f"warning: {rec.path} is damaged: {rec.damage.describe()}; replaying what was "
+              "read", file=sys.stderr)  # fmt: skip
     if args.info:
         return 0
     try:
@@ -166,6 +201,27 @@ def replay_main(argv: list[str] | None = None) -> int:
     except SessionError as exc:
         print(f"followbot replay: {exc}", file=sys.stderr)
         return 1
+
+
+REPLAY_EPILOG = """\
+which topics:
+  By default only sensor input is replayed (sensors/scan, sensors/image, sensors/odom):
+  replay usually feeds a live pipeline, which makes its own candidates, tracks and commands.
+  Replaying the recorded tracking/target or control/cmd_vel as well would give its controller
+  and the robot two command streams. --topics chooses others (e.g. --topics 'sensors/*,sim/*'),
+  --all-topics replays everything (into a system where nothing else publishes), --exclude
+  leaves topics out. The list printed at the start says what is replayed and what is skipped.
+
+damaged files:
+  A recording cut short (a recorder killed, a full disk, an interrupted copy) or damaged
+  part-way is replayed up to the damage, with a warning saying how much was read and why it
+  stopped; the exit code is 0. A file with nothing readable is an error (exit 2).
+"""
+
+
+def _patterns(items: list[str]) -> list[str]:
+    """``["a,b", "c"]`` -> ``["a", "b", "c"]`` (comma-separated or repeated options)."""
+    return [p.strip() for item in items for p in item.split(",") if p.strip()]
 
 
 def _replay(rec, args: argparse.Namespace) -> int:
@@ -229,6 +285,8 @@ def _replay(rec, args: argparse.Namespace) -> int:
     print(f"replayed {sent} messages in {elapsed:.1f} s")
     for reason, n in rec.skipped.most_common():
         print(f"  skipped {n}: {reason}")
+    if rec.damage is not None and error is None:
+        print(f"warning: {rec.path} is damaged: {rec.damage.describe()}", file=sys.stderr)
     if barrier is not None and any(barrier.timeouts.values()):
         late = {s: n for s, n in barrier.timeouts.items() if n}
         print(f"  lock-step: scans a stage did not answer within {args.timeout:.0f} s: {late}")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ from followbot.schemas import (
     Verification,
 )
 
-__all__ = ["RunError", "run_scenario"]
+__all__ = ["RunError", "invalid_stage_settings", "run_scenario"]
 
 STAGES = ("laser_legs", "vision_verify", "tracker", "controller")
 #: topic -> (stage whose answer it is, ScanRecord field)
@@ -96,6 +97,30 @@ class StageProcesses:
             fh.close()
 
 
+def invalid_stage_settings(settings: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """Check each service's settings the way the service will when started (``followbot run
+    NAME --config FILE --print-settings``, all at once, in about a second); returns {service:
+    its error} for the ones refused: an unknown key, a bad value, an unknown plugin name."""
+    with tempfile.TemporaryDirectory(prefix="followbot-check-") as tmp:
+        checks, files = {}, {}
+        for service, values in settings.items():
+            cfg = files[service] = Path(tmp) / f"{service}.yaml"
+            cfg.write_text(yaml.safe_dump(values, sort_keys=False))
+            checks[service] = subprocess.Popen(
+                [sys.executable, "-m", "followbot", "run", service, "--config", str(cfg),
+                 "--print-settings"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            )  # fmt: skip
+        errors = {s: p.communicate(timeout=120)[1] for s, p in checks.items()}
+    # "followbot run tracker: /tmp/.../tracker.yaml: Object contains unknown field `bogus`"
+    # -> "settings: Object contains unknown field `bogus`" (the file was ours, not the user's)
+    return {
+        s: errors[s].strip().removeprefix(f"followbot run {s}: ").replace(str(files[s]), "settings")
+        for s, p in checks.items()
+        if p.returncode != 0
+    }
+
+
 def stage_settings(
     preset: str, lockstep: bool, *, odometry: bool = True, vision: bool = True
 ) -> dict[str, dict[str, Any]]:
@@ -122,6 +147,10 @@ def stage_settings(
         # the wall-clock watchdog would brake the controller's own state between scans on a
         # slow machine (the sim ignores its commands, but the next command starts from them)
         out["controller"]["stale_after_s"] = 0.0
+        out["tracker"]["stale_after_s"] = 0.0
+        # the source sets the pace: a recording's gap is no stamp from the future
+        for stage in STAGES:
+            out[stage]["clock"] = {"max_ahead_s": None}
     return out
 
 

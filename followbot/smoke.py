@@ -21,6 +21,7 @@ from pathlib import Path
 
 from followbot import progress
 from followbot.schemas import Health, decode
+from followbot.services.runtime.argtypes import non_negative_float, positive_float
 
 SERVICES = ("synthetic", "monitor")
 
@@ -31,13 +32,14 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--duration", type=float, default=5.0, help="seconds of streaming (5)")
-    p.add_argument("--scan-rate", type=float, default=40.0, help="scans per second (40)")
-    p.add_argument("--image-rate", type=float, default=10.0, help="images per second (10)")
+    p.add_argument("--duration", type=positive_float, default=5.0, help="seconds of streaming (5)")
+    p.add_argument("--scan-rate", type=positive_float, default=40.0, help="scans per second (40)")
+    p.add_argument(
+        "--image-rate", type=non_negative_float, default=10.0,
+        help="images per second, 0 for none (10)",
+    )  # fmt: skip
     p.add_argument("--output", default="out/smoke", help="folder for logs and summary (out/smoke)")
     args = p.parse_args(argv)
-    if args.duration <= 0:
-        p.error("--duration must be > 0")
 
     from followbot.services.runtime.session import free_loopback_endpoint, open_session
     from followbot.services.runtime.settings import ZenohSettings

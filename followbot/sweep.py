@@ -56,6 +56,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from followbot.services.runtime.argtypes import positive_int
+
 __all__ = ["HARD", "TWO_PERSON", "aggregate", "code_fingerprint", "grid", "main"]
 
 #: The four two-person scenarios of thesis 5.2.4 (issue 6: 0 identity switches on each).
@@ -283,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
         "--set", action="append", default=[], metavar="STAGE.KEY=VALUE",
         help="a stage setting on top of the thesis preset, as for `followbot eval` (repeatable)",
     )  # fmt: skip
-    p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
+    p.add_argument("--jobs", type=positive_int, default=2, help="runs at once (default 2)")
     p.add_argument("--against", metavar="DIR", help="another sweep's folder to compare with")
     p.add_argument("--fresh", action="store_true", help="run again the runs already done")
     args = p.parse_args(argv)

@@ -11,6 +11,8 @@ import argparse
 import sys
 import time
 
+from followbot.services.runtime.argtypes import positive_float
+
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.schemas import TargetCommand, TargetModel
@@ -25,10 +27,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="followbot target", description=__doc__)
     p.add_argument("action", choices=["acquire", "reset", "save", "load"])
     p.add_argument("--path", default="", help="model file for save/load (default: the service's)")
-    p.add_argument("--wait", type=float, default=5.0, help="seconds to wait for vision_verify (5)")
     p.add_argument(
-        "--timeout", type=float, default=30.0, help="acquire: seconds to wait for a model (30)"
+        "--wait", type=positive_float, default=5.0, help="seconds to wait for vision_verify (5)"
     )
+    p.add_argument(
+        "--timeout", type=positive_float, default=30.0,
+        help="acquire: seconds to wait for a model (30)",
+    )  # fmt: skip
     add_zenoh_arguments(p)
     args = p.parse_args(argv)
     settings = load_settings(NodeSettings, None, [*overrides_from_args(args), "log_level=warning"])

@@ -25,6 +25,7 @@ from collections import deque
 from pathlib import Path
 
 from followbot import progress
+from followbot.services.runtime.argtypes import positive_float, positive_int
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,20 +46,19 @@ def main(argv: list[str] | None = None) -> int:
         "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
         help="a stage setting, e.g. laser_legs.detector=bellotto (repeatable)",
     )  # fmt: skip
-    p.add_argument("--max-scans", type=int, help="stop after this many scans")
-    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait per scan (5)")
+    p.add_argument(
+        "--max-scans", type=positive_int, metavar="N", help="stop after N scans (default: all)"
+    )
+    p.add_argument(
+        "--timeout", type=positive_float, default=5.0, metavar="S",
+        help="seconds to wait for the stages' answers to one scan (5)",
+    )  # fmt: skip
     args = p.parse_args(argv)
     remaps = {args.scan_topic: "sensors/scan"}
     if args.odom_topic:
         remaps[args.odom_topic] = "sensors/odom"
     if args.image_topic:
         remaps[args.image_topic] = "sensors/image"
-    try:
-        rec = open_recording(args.file, remaps)
-    except (RecordingError, ValueError) as exc:
-        print(f"followbot track: {exc}", file=sys.stderr)
-        return 2
-    rec.mapping = {src: dst for src, dst in rec.mapping.items() if src in remaps}
     stages = ["laser_legs", "tracker"] + (["vision_verify"] if args.image_topic else [])
     settings = _stage_settings(
         args.preset, stages, bool(args.image_topic), args.set, odometry=bool(args.odom_topic)
@@ -66,6 +66,24 @@ def main(argv: list[str] | None = None) -> int:
     if isinstance(settings, str):
         print(f"followbot track: {settings}", file=sys.stderr)
         return 2
+    # Each stage checks its settings the way it will when started, all at once, before the
+    # recording is read: a wrong key or value is an error in about a second.
+    from followbot.runner import invalid_stage_settings
+
+    bad = invalid_stage_settings(settings)
+    if bad:
+        for stage, why in bad.items():
+            print(f"followbot track: {stage}: {why}", file=sys.stderr)
+        return 2
+    try:
+        rec = open_recording(args.file, remaps)
+    except (RecordingError, ValueError) as exc:
+        print(f"followbot track: {exc}", file=sys.stderr)
+        return 2
+    rec.mapping = {src: dst for src, dst in rec.mapping.items() if src in remaps}
+    if rec.damage is not None:
+        print(f"warning: {rec.path} is damaged: {rec.damage.describe()}; tracking what was "
+              "read", file=sys.stderr)  # fmt: skip
     try:
         return _track(rec, stages, settings, Path(args.output), args.max_scans, args.timeout)
     except RecordingError as exc:
@@ -115,8 +133,11 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     session = open_session(ZenohSettings(listen=[endpoint]))
     node = Node("track", NodeSettings(robot=robot, health_period_s=3600), ZenohBus(session))
 
+    most_at_once = [0]
+
     def on_people(m, payload: bytes) -> None:
         writer.write("tracking/people", payload, m.stamp_ns, time.time_ns())
+        most_at_once[0] = max(most_at_once[0], len(m.tracks))
         for t in m.tracks:
             people_rows.append([m.stamp_ns, t.id, t.x_m, t.y_m, t.vx_mps, t.vy_mps])
 
@@ -136,9 +157,13 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     try:
         for s in stages:
             procs.start(s, {**common, **settings[s]})
-        missing = barrier.wait_alive(60.0)
-        if missing:
-            raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
+        deadline = time.monotonic() + 60.0
+        while missing := barrier.wait_alive(0.1):
+            if (s := procs.exited(stages)) is not None:
+                code = procs.procs[s].returncode
+                raise SystemExit(_fail(f"{s} exited {code} on start-up", procs, [s]))
+            if time.monotonic() > deadline:
+                raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
         time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
         last_shown = 0.0
         messages = sensor_order(rec.messages())
@@ -175,13 +200,19 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             w.writerows([r[:2] + [f"{v:.4f}" for v in r[2:]] for r in rows])
     ids = {r[1] for r in people_rows}
     wall = time.monotonic() - t0
+    # A track id is not a person: one person lost and found again gets a new id, so the ids
+    # over-count people; the most tracks in one scan is what a scan shows at once.
+    plural = "" if len(ids) == 1 else "s"
     print(f"tracked {scans} scans in {wall:.1f} s ({scans / max(wall, 1e-9):.0f} scans/s): "
-          f"{len(ids)} people, target tracked in {len(target_rows)} scans")  # fmt: skip
+          f"{len(ids)} person track{plural} (distinct track ids), at most {most_at_once[0]} "
+          f"in one scan; target tracked in {len(target_rows)} scans")  # fmt: skip
     timeouts = {s: n for s, n in barrier.timeouts.items() if n}
     if timeouts:
         print(f"  stages that did not answer in time: {timeouts}")
     for reason, n in rec.skipped.most_common():
         print(f"  skipped {n}: {reason}")
+    if rec.damage is not None:
+        print(f"warning: {rec.path} is damaged: {rec.damage.describe()}", file=sys.stderr)
     print(f"wrote {out / 'tracks.mcap'}, {out / 'people.csv'}, {out / 'target.csv'}")
     return 0
 

@@ -478,14 +478,14 @@ def main(argv: list[str] | None = None) -> int:
         spec = compose.services[members[0]]
         config = log_dir / f"{process}.settings.yaml"
         runs = [compose.services[m].service or m for m in members]
-        if len(members) == 1 and spec.process is None:
-            settings = service_settings(compose, process)
-        else:  # several services in one process (docs/runtime.md)
-            try:
+        try:
+            if len(members) == 1 and spec.process is None:
+                settings = service_settings(compose, process)
+            else:  # several services in one process (docs/runtime.md)
                 settings = group_settings(compose, members)
-            except ComposeError as exc:
-                print(f"followbot up: {exc}", file=sys.stderr)
-                return 2
+        except ComposeError as exc:
+            print(f"followbot up: {exc}", file=sys.stderr)
+            return 2
         router_at = []
         if on_embedded_default(settings):
             settings = client_of(settings, router_endpoint)

@@ -28,8 +28,10 @@ from .base import (
 )
 
 __all__ = [
+    "MAX_ANGULAR_RADPS",
     "MAX_BEAMS",
     "MAX_IMAGE_SIDE",
+    "MAX_LINEAR_MPS",
     "MESSAGE_TYPES",
     "Candidate",
     "GroundTruth",
@@ -500,11 +502,18 @@ class People(Message, tag="people", kw_only=True):
 # --------------------------------------------------------------------------- control
 
 
-class VelocityCommand(Message, tag="velocity_command", kw_only=True):
-    """control/cmd_vel: base velocity; ``stamp_ns`` is the scan stamp the command derives from."""
+#: Physical bounds of any command on the wire: no person-following base goes faster, so a
+#: command beyond them is a fault or an attack and is rejected by every receiver.
+MAX_LINEAR_MPS = 3.0
+MAX_ANGULAR_RADPS = 2 * math.pi
 
-    linear_mps: Finite
-    angular_radps: Finite
+
+class VelocityCommand(Message, tag="velocity_command", kw_only=True):
+    """control/cmd_vel: base velocity; ``stamp_ns`` is the scan stamp the command derives from.
+    Bounded on the wire: |linear| <= 3 m/s, |angular| <= 2 pi rad/s."""
+
+    linear_mps: Annotated[float, msgspec.Meta(ge=-MAX_LINEAR_MPS, le=MAX_LINEAR_MPS)]
+    angular_radps: Annotated[float, msgspec.Meta(ge=-MAX_ANGULAR_RADPS, le=MAX_ANGULAR_RADPS)]
     reason: Name = ""
     """Why. The thesis rule: ``max_speed`` (> 1.5 m), ``match_speed`` (1.2-1.5 m),
     ``stop_close`` (< 1.2 m), ``coasting`` (the last goal kept), ``lost`` / ``initialising``

@@ -20,17 +20,23 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 
 def pytest_addoption(parser):
     parser.addoption("--run-soak", action="store_true", help="run the long soak tests")
-    parser.addoption("--run-chaos", action="store_true", help="run the long start-up checks")
+    parser.addoption(
+        "--run-chaos", action="store_true", help="run the fault-injection and start-up checks"
+    )
 
 
 def pytest_collection_modifyitems(config, items):
-    for marker, option, target in (
-        ("soak", "--run-soak", "soak"),
-        ("chaos", "--run-chaos", "chaos"),
-    ):
+    opt_in = {
+        "soak": ("--run-soak", "soak test: opt in with `make soak` (--run-soak)"),
+        "chaos": (
+            "--run-chaos",
+            "fault injection or start-up check: opt in with `make chaos` (--run-chaos)",
+        ),
+    }
+    for marker, (option, reason) in opt_in.items():
         if config.getoption(option):
             continue
-        skip = pytest.mark.skip(reason=f"{marker} test: opt in with `make {target}` ({option})")
+        skip = pytest.mark.skip(reason=reason)
         for item in items:
             if marker in item.keywords:
                 item.add_marker(skip)

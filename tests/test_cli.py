@@ -21,8 +21,8 @@ def followbot(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
 def test_help_lists_the_commands():
     out = followbot("--help")
     assert out.returncode == 0
-    commands = ("run", "services", "topics", "schemas", "demo", "smoke", "bench", "eval", "up")
-    for cmd in (*commands, "status"):
+    for cmd in ("run", "services", "topics", "schemas", "demo", "smoke", "bench", "eval", "up",
+                "appearance", "status"):  # fmt: skip
         assert cmd in out.stdout
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -81,11 +82,18 @@ def test_unknown_services_are_refused_with_the_installed_list(tmp_path):
         check_services(c, ["a", "b"])
 
 
-def test_shipped_compose_files_are_valid():
+def test_shipped_compose_files_are_valid(tmp_path):
+    from followbot.certs import main as certs
+
+    # split_secure.yaml needs the certificates `followbot certs` makes
+    assert (
+        certs([str(tmp_path / "certs"), "--compose", str(REPO / "compose/split_secure.yaml")]) == 0
+    )
+    env = dict(os.environ, FOLLOWBOT_CERTS=str(tmp_path / "certs"))
     for path in sorted((REPO / "compose").glob("*.yaml")):
         out = subprocess.run(
             [sys.executable, "-m", "followbot", "up", str(path), "--check"],
-            capture_output=True, text=True, timeout=120,
+            capture_output=True, text=True, timeout=120, env=env,
         )  # fmt: skip
         assert out.returncode == 0, f"{path.name}: {out.stderr}"
 
@@ -249,3 +257,9 @@ services:
         assert "monitor stopped" in rest and "synthetic stopped" in rest
     finally:
         up.close()
+
+
+def test_no_compose_file_listens_on_every_interface():
+    for path in sorted((REPO / "compose").glob("*.yaml")):
+        text = path.read_text()
+        assert "0.0.0.0" not in text and "[::]" not in text, path

@@ -114,13 +114,19 @@ def test_laser_legs_tracker_and_controller_in_one_process(spawn, endpoint, robot
         scans.put(encode(scan))
         stamps.append(stamp)
         time.sleep(0.05)
+    time.sleep(0.5)
+    assert last["tracking/target"].status == "tracking"
     time.sleep(1.0)
+    # the scans stopped: past stale_after_s (1 s) the tracker said once that the target is
+    # lost, naming the last scan; every other scan had one answer on each topic
+    stale = last["tracking/target"]
+    assert stale.status == "lost" and "stale_input" in stale.flags and stale.stamp_ns == stamps[-1]
+    seen["tracking/target"][stamps[-1]] -= 1
     for topic, counts in seen.items():
         answered = [s for s in stamps if counts[s]]
         assert len(answered) >= len(stamps) - 2, (topic, len(answered), group.output[-2000:])
         if topic != "control/cmd_vel":  # (the controller's watchdog repeats itself)
             assert max(counts.values()) == 1, f"{topic} published twice for one scan"
-    assert last["tracking/target"].status == "tracking"
     group.signal(signal.SIGTERM)
     assert group.wait(15) == 0, group.output[-2000:]
     for w in watches:

@@ -56,8 +56,12 @@ def test_bounded_queue_drops_oldest_and_counts(net):
     node.spin_once()
     assert got == [7, 8, 9]
     assert inp.dropped == 7
-    assert node.health().dropped == {"sensors/scan": 7}
-    assert node.health().status == "degraded"
+    h = node.health()
+    assert h.dropped == {"sensors/scan": 7}
+    assert h.status == "degraded" and "dropped 7 sensors/scan (input queue full)" in h.reasons
+    # health judges the last period: with nothing dropped since, the node is well again
+    later = node.health()
+    assert later.dropped == {"sensors/scan": 7} and later.status == "ok" and later.reasons == []
 
 
 def test_bad_payloads_are_counted_and_good_ones_still_processed(net, caplog):

@@ -23,6 +23,7 @@ from followbot.schemas import (
     RejectedMessage,
     TargetModel,
     TrackState,
+    VelocityCommand,
     Verification,
     VerifiedCandidate,
     decode,
@@ -230,3 +231,13 @@ def test_unknown_topic_lists_the_valid_ones():
     with pytest.raises(ValueError, match="sensors/scan"):
         Keys().topic("sensors/scna")
     assert topic_type("health/anything") is not None
+
+
+@pytest.mark.parametrize(("v", "w"), [(10.0**12, 0.0), (-3.5, 0.0), (0.5, 7.0), (0.0, -100.0)])
+def test_velocity_commands_beyond_any_base_are_rejected_on_the_wire(v, w):
+    # a command any receiver refuses: no followbot base goes faster than 3 m/s or 2 pi rad/s
+    payload = msgspec.msgpack.encode(
+        {"type": "velocity_command", "stamp_ns": 1, "linear_mps": v, "angular_radps": w}
+    )
+    with pytest.raises(RejectedMessage):
+        decode(VelocityCommand, payload)

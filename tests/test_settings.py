@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import msgspec
 import pytest
 
@@ -48,6 +50,9 @@ def test_json_files_work_too(tmp_path):
         ("", ["rate_hz"], "key=value"),
         ("robot: r1\n", ["robot.name=x"], "not a section"),
         ("", ["robot.name=x"], "not a section"),
+        ("", ["robot=a/b"], "robot name 'a/b' must be 1-64 characters"),
+        ("robot: 'two words'\n", [], "robot name 'two words' must be"),
+        ("clock:\n  max_ahead_s: -1\n", [], "clock.max_ahead_s"),
     ],
 )
 def test_bad_settings_name_the_problem(tmp_path, text, overrides, message):
@@ -89,8 +94,29 @@ def test_a_partial_section_keeps_the_other_defaults_of_that_section(tmp_path):
     from followbot.services.runtime.router import RouterSettings
 
     s = load_settings(RouterSettings, None, ["zenoh.connect=[tcp/10.0.0.2:7447]"])
-    assert s.zenoh.mode == "router" and s.zenoh.listen == ["tcp/0.0.0.0:7447"]
+    assert s.zenoh.mode == "router" and s.zenoh.listen == ["tcp/127.0.0.1:7447"]
     assert s.zenoh.connect == ["tcp/10.0.0.2:7447"]
     f = tmp_path / "r.yaml"
     f.write_text("zenoh:\n  lease_ms: 2000\n")
     assert load_settings(RouterSettings, f).zenoh.mode == "router"
+
+
+def _listen(zenoh: ZenohSettings) -> list[str]:
+    return json.loads(zenoh_config(zenoh).get_json("listen/endpoints"))
+
+
+def test_a_process_told_nothing_about_listening_listens_on_loopback_not_every_interface(
+    tmp_path,
+):
+    from followbot.services.runtime.router import RouterSettings
+
+    # zenoh's own defaults are tcp/[::]:0 (peer) and tcp/[::]:7447 (router): every interface
+    assert _listen(ZenohSettings(connect=["tcp/127.0.0.1:7447"])) == ["tcp/127.0.0.1:0"]
+    assert _listen(ZenohSettings(mode="router")) == ["tcp/127.0.0.1:7447"]
+    assert _listen(load_settings(RouterSettings).zenoh) == ["tcp/127.0.0.1:7447"]
+    # a zenoh config file that says where to listen is obeyed
+    f = tmp_path / "z.json5"
+    f.write_text('{ listen: { endpoints: ["tcp/127.0.0.2:0"] } }')
+    assert _listen(ZenohSettings(connect=["tcp/127.0.0.1:7447"], config=str(f))) == [
+        "tcp/127.0.0.2:0"
+    ]

@@ -183,3 +183,39 @@ def test_odometry_goes_out_before_the_scan_it_brackets():
     assert order(gap, horizon_ns=120 * MS) == [
         ("odom", 0), ("scan", 100), ("odom", 250), ("scan", 200), ("scan", 300),
     ]  # fmt: skip
+
+
+@pytest.mark.multiprocess
+def test_a_cut_recording_is_tracked_up_to_the_cut(tmp_path):
+    from recordings import write_recording
+
+    layout = write_recording(tmp_path / "whole.mcap")
+    offset = (layout.chunk_ends[4] + layout.chunk_ends[5]) // 2
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(layout.path.read_bytes()[:offset])
+    n = layout.scans_before(offset)
+    out = track(tmp_path / "out", "--odom-topic", "sensors/odom", recording=cut,
+                scan_topic="sensors/scan", max_scans=None)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert f"tracked {n} scans" in out.stdout
+    assert "is damaged: read" in out.stderr and "cut short" in out.stderr
+    people = rows(tmp_path / "out" / "people.csv")[1:]
+    assert {int(r[0]) for r in people} <= {m.stamp_ns for _, t, m in open_recording(cut).messages()
+                                           if t == "sensors/scan"}  # fmt: skip
+    # the summary counts track ids, and says so; it claims no number of people
+    ids = {r[1] for r in people}
+    plural = "" if len(ids) == 1 else "s"
+    assert ids and f"{len(ids)} person track{plural} (distinct track ids)" in out.stdout
+    assert " people" not in out.stdout
+
+
+def test_a_bad_stage_setting_is_refused_before_any_stage_starts(tmp_path):
+    from recordings import write_recording
+
+    recording = write_recording(tmp_path / "run.mcap", chunks=1).path
+    out = track(tmp_path / "out", "--set", "tracker.bogus=1", "--set", "laser_legs.detector=nope",
+                recording=recording, scan_topic="sensors/scan")  # fmt: skip
+    assert out.returncode == 2
+    assert "tracker: settings: Object contains unknown field `bogus`" in out.stderr
+    assert "laser_legs: settings: detector: unknown detector 'nope'; valid names:" in out.stderr
+    assert not (tmp_path / "out").exists()  # no stage was started (each would log there)

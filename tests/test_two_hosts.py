@@ -104,7 +104,7 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
             time.sleep(2.0)
             procs.append(start(bot, "rec", "record", "tracking/target", "perception/verification",
                                "-o", str(tmp_path / "run.mcap"), "--robot", robot, "--mode",
-                               "client", "--connect", "tcp/127.0.0.1:7447"))  # fmt: skip
+                               "client", "--connect", f"tcp/{bot.address}:7447"))  # fmt: skip
             v1 = start(off, "v1", "run", "vision_verify", "--config", str(vision_cfg))
             procs.append(v1)
             # model built (processes on two cores can take several seconds to start), then

@@ -38,7 +38,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from followbot.schemas import TrackState
+from followbot.schemas import MAX_ANGULAR_RADPS, MAX_LINEAR_MPS, TrackState
 
 from .avoid import ObstacleGuard, moved_into_frame, outside_view
 
@@ -61,6 +61,13 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     max_speed_mps: _Pos = 0.75
     # thesis 5.2.5: rotation at most 100 deg/s; pan 90 deg/s within +-100 deg
     max_turn_deg_s: _Pos = 100.0
+    hardware_max_speed_mps: Annotated[float, msgspec.Meta(gt=0, le=MAX_LINEAR_MPS)] = 1.0
+    """The base's own speed cap: max_speed_mps may not exceed it (a settings file asking for
+    more is refused), and no command exceeds it. Set it to what the base is rated for."""
+    hardware_max_turn_deg_s: Annotated[
+        float, msgspec.Meta(gt=0, le=math.degrees(MAX_ANGULAR_RADPS))
+    ] = 180.0
+    """The base's own turn-rate cap: max_turn_deg_s may not exceed it."""
     pan_rate_deg_s: _Pos = 90.0
     pan_limit_deg: Annotated[float, msgspec.Meta(ge=0, le=180)] = 100.0
     turn_gain_per_s: _Pos = 1.5
@@ -167,6 +174,19 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     (the rule stops 1.2 m short of them anyway)."""
     laser_mount_x_m: float = 0.0
     """The laser's position ahead of the base origin."""
+
+    def __post_init__(self) -> None:
+        if self.max_speed_mps > self.hardware_max_speed_mps:
+            raise ValueError(
+                f"max_speed_mps {self.max_speed_mps} exceeds hardware_max_speed_mps "
+                f"{self.hardware_max_speed_mps} (the base's own cap; raise that only if the "
+                "base is rated for it)"
+            )
+        if self.max_turn_deg_s > self.hardware_max_turn_deg_s:
+            raise ValueError(
+                f"max_turn_deg_s {self.max_turn_deg_s} exceeds hardware_max_turn_deg_s "
+                f"{self.hardware_max_turn_deg_s} (the base's own cap)"
+            )
 
 
 ESCAPE_VIEW_MARGIN_RAD = math.radians(10.0)

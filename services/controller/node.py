@@ -30,6 +30,10 @@ _ControllerNodeBase = with_node_settings(ControllerSettings, "_ControllerNodeBas
 
 
 class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_fields=True):
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        core_settings(self)  # ControllerSettings' checks (the hardware caps) while loading
+
     stale_after_s: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """No target for this long (wall clock) -> brake to zero. 0 disables (lock-step on a slow
     machine, where wall time between scans means nothing)."""
@@ -47,9 +51,13 @@ class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_f
     (the base stops)."""
 
 
-def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
+def core_settings(settings: msgspec.Struct) -> ControllerSettings:
     names = ControllerSettings.__struct_fields__
-    ctl = FollowController(ControllerSettings(**{n: getattr(settings, n) for n in names}))
+    return ControllerSettings(**{n: getattr(settings, n) for n in names})
+
+
+def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
+    ctl = FollowController(core_settings(settings))
     cmd_pub = node.publisher("control/cmd_vel")
     pan_pub = node.publisher("control/pan")
     st = {
@@ -94,6 +102,11 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         st["pending"] = None
         now = time.monotonic()
         last_stamp = st["last_stamp"]
+        if st["watchdog_out"] and last_stamp is not None and t.stamp_ns <= last_stamp:
+            # the watchdog is braking and this target is no newer than the last: it says
+            # nothing new (a tracker whose input is stuck), so braking goes on
+            publish(ctl.stop(now - st["last_out"], "stale"), last_stamp)
+            return
         if st["watchdog_out"] and st["last_out"] is not None:
             dt = now - st["last_out"]
         elif last_stamp is not None and 0 < t.stamp_ns - last_stamp <= settings.max_dt_s * 1e9:
@@ -105,7 +118,10 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         scan = obstacles_for(t.stamp_ns) if ctl.guard is not None else None
         pts, view = (None, None) if scan is None else scan
         c = ctl.on_target(t, dt, pts, view)
-        st["last_target"] = now
+        if last_stamp is None or t.stamp_ns > last_stamp:
+            # only a target newer than the last one is fresh: a tracker repeating a stamp
+            # (its input stuck) must not keep the watchdog quiet
+            st["last_target"] = now
         st["last_stamp"] = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
         st["watchdog_out"] = False
         publish(c, t.stamp_ns)
@@ -154,13 +170,29 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
 
     def on_tracker_alive(alive: bool) -> None:
         st["tracker_alive"] = alive
+        if alive:
+            node.clear_condition("tracker")
+        else:
+            node.set_condition("tracker", "degraded", "tracker gone: braking to a stop")
         if not alive:
             node.log.warning("tracker liveliness gone: braking to zero velocity")
             watchdog()
 
-    node.subscribe("tracking/target", on_target, policy="all")
+    def restart_targets() -> None:
+        st.update(last_stamp=None, pending=None)
+
+    def restart_scans() -> None:
+        st["scans"].clear()
+
+    node.subscribe(
+        "tracking/target",
+        on_target,
+        policy="all",
+        on_restart=restart_targets,
+        expect_within_s=settings.stale_after_s or None,
+    )
     if ctl.guard is not None:
-        node.subscribe("sensors/scan", on_scan, policy="all")
+        node.subscribe("sensors/scan", on_scan, policy="all", on_restart=restart_scans)
     node.watch_alive(settings.tracker_service, on_tracker_alive)
     node.every(settings.watchdog_period_s, watchdog, name="watchdog")
     return ctl

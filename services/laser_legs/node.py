@@ -79,6 +79,7 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     the world moves past; see services/laser_legs/self_filter.py). null: off."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         # checked while the settings load, so a bad detector or key fails before any network
         # is opened (exit code 2, the message naming the key)
         build_detector(self, check_only=True)
@@ -255,11 +256,37 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
                 counts["lost_scans"] += 1
         out.put(msgspec.structs.replace(result, horizon=seen, reach_m=reach))
 
-    node.subscribe("sensors/scan", on_scan, policy="all", dispatch="inline")
+    def restart() -> None:
+        """The scans' source restarted with a new clock: start as if new (detectors with a
+        history, e.g. a learned background, forget it; held scans and the target go)."""
+        nonlocal detector, lost_detector
+        detector = build_detector(settings)
+        if lost_detector is not None:
+            lost_detector = build_detector(settings, while_lost=True)
+        held.clear()
+        stamps.update(scan=-1, target=-1, odom=-1)
+        predictor.reset()
+
+    def restart_target() -> None:
+        predictor.target = None
+        stamps["target"] = -1
+
+    def restart_odometry() -> None:
+        predictor.reset_odometry()
+        stamps["odom"] = -1
+
+    node.subscribe(
+        "sensors/scan",
+        on_scan,
+        policy="all",
+        dispatch="inline",
+        on_restart=restart,
+        expect_within_s=1.0,
+    )
     if follows_target:
-        node.subscribe("tracking/target", on_target, policy="all")
+        node.subscribe("tracking/target", on_target, policy="all", on_restart=restart_target)
     if settings.use_target_prediction:
-        node.subscribe("sensors/odom", on_odometry, policy="all")
+        node.subscribe("sensors/odom", on_odometry, policy="all", on_restart=restart_odometry)
     if wait_s > 0:
         node.every(0.005, check_held, name="held_scans")
 

@@ -113,6 +113,14 @@ class TargetPredictor:
         self.skipped = 0
         """Scans with a usable target that could not be predicted (stale, no odometry...)."""
 
+    def reset(self) -> None:
+        """Forget the target and the odometry (their source's clock restarted)."""
+        self.reset_odometry()
+        self.target = None
+
+    def reset_odometry(self) -> None:
+        self.odometry = OdometryBuffer(max_extrapolation_s=self.odometry.max_extrapolation_s)
+
     def add_target(self, target: TrackState) -> None:
         # one publisher's messages arrive in order: the newest arrival is the newest state
         # (also after a restart of the tracker's clock)

@@ -42,6 +42,10 @@ class Bus(Protocol):
     def watch_liveliness(self, key_expr: str, callback: AliveCallback) -> Closeable: ...
     def queryable(self, key: str, handler: QueryHandler) -> Closeable: ...
     def query(self, key: str, timeout_s: float) -> list[bytes]: ...
+    def peer_count(self) -> int | None:
+        """Zenoh peers and routers this process is connected to (None: not known)."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -136,6 +140,10 @@ class ZenohBus:
             if reply.ok is not None:
                 out.append(reply.ok.payload.to_bytes())
         return out
+
+    def peer_count(self) -> int | None:
+        info = self.session.info
+        return sum(1 for _ in info.peers_zid()) + sum(1 for _ in info.routers_zid())
 
     def close(self) -> None:
         for d in reversed(self._declared):
@@ -273,6 +281,9 @@ class FakeBus:
         with self.net._lock:
             handlers = [h for k, h in self.net._queryables if key_matches(key, k)]
         return [p for p in (h() for h in handlers) if p is not None]
+
+    def peer_count(self) -> int | None:
+        return None
 
     def close(self) -> None:
         for h in reversed(self._handles):

@@ -7,16 +7,18 @@ A compose file is YAML, validated strictly (an unknown key is an error naming it
     preset: thesis                 # thesis | bellotto | livingston | ristic | zhuang
     zenoh: {mode: peer}            # defaults for every service
     hosts:                         # optional: per-machine zenoh settings
-      robot:    {zenoh: {listen: [tcp/0.0.0.0:7447]}}
+      robot:    {zenoh: {listen: [tcp/192.168.1.10:7447]}}
       offboard: {zenoh: {connect: [tcp/192.168.1.10:7447]}}
     services:
       sim:        {settings: {scenario: thesis_5_2_1_arc}, stop_all_on_exit: true}
       laser_legs: {}
       vision_verify: {host: offboard}
       tracker:    {restart: always}
+    security: {certs: certs}       # optional: TLS, passwords, access rules (security.py)
 
 Settings of a service are merged, lowest first: the preset's choices for it, the file's
-``zenoh``, its host's ``zenoh``, then the service's own ``settings``.
+``zenoh``, its host's ``zenoh``, what the ``security`` section gives it (security.py), then
+the service's own ``settings``.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 import yaml
 
+from .security import SecuritySpec, compose_identities, compose_security
 from .session import is_embedded_default
 from .settings import ZenohSettings, _merge
 
@@ -113,6 +116,9 @@ class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     router: RouterSpec = msgspec.field(default_factory=RouterSpec)
     """The router ``up`` starts for the services whose settings name no Zenoh endpoints."""
     services: Annotated[dict[_NAME, ServiceSpec], msgspec.Meta(min_length=1)]
+    security: SecuritySpec | None = None
+    """Mutual TLS, passwords and access rules for every service (docs/compose.md, "Secure
+    deployment"); none: plain TCP, anyone who reaches an endpoint may publish anything."""
     path: str = ""
     """Where the file was read from (set by load_compose)."""
 
@@ -147,6 +153,11 @@ def load_compose(path: str | Path) -> Compose:
             "PF + KF) is not implemented; choose thesis, bellotto, livingston or ristic"
         )
     _check_processes(path, compose)
+    if compose.security is not None:
+        try:
+            compose_identities(compose)
+        except ValueError as exc:
+            raise ComposeError(str(exc)) from None
     for name, spec in compose.services.items():
         if spec.host != "local" and compose.hosts and spec.host not in compose.hosts:
             raise ComposeError(
@@ -200,6 +211,10 @@ def service_settings(compose: Compose, name: str) -> dict[str, Any]:
     host = compose.hosts.get(spec.host)
     if host is not None and host.zenoh:
         _merge(out, {"zenoh": dict(host.zenoh)})
+    try:
+        _merge(out, compose_security(compose, name))  # this entry's certificate, password
+    except ValueError as exc:
+        raise ComposeError(str(exc)) from None
     _merge(out, _deep_copy(spec.settings))
     return out
 
@@ -278,7 +293,8 @@ def on_embedded_default(settings: dict[str, Any]) -> bool:
     """Whether a process started with ``settings`` (one service's, or a group's) would leave
     its topology to Zenoh's embedded default (no endpoints, no config file, not a client)."""
     z = _zenoh_of(settings)
-    return z is not None and is_embedded_default(z)
+    # with TLS, endpoints must be named (tls/...): a plain router would not admit it
+    return z is not None and is_embedded_default(z) and not z.tls.enabled
 
 
 def is_router(settings: dict[str, Any]) -> bool:

@@ -55,6 +55,7 @@ import msgspec
 from followbot.schemas import Health, Keys, Message, RejectedMessage, decode, encode, topic_type
 
 from .bus import Bus
+from .clock import StampGuard
 from .settings import NodeSettings
 from .stats import RateLimitedLog, Window, rss_mb
 
@@ -69,6 +70,9 @@ Dispatch = Literal["inline", "loop"]
 TRACE_ENV = "FOLLOWBOT_TRACE_INPUTS"
 
 _HOST = socket.gethostname()[:256]
+
+#: A process this long up with nobody else on the network says so in its health.
+_LONELY_AFTER_NS = 3_000_000_000
 
 #: Longest the loop sleeps without looking at its stop flag and timers.
 _MAX_WAIT_S = 0.1
@@ -95,6 +99,8 @@ class _Input(Generic[M]):
         capacity: int,
         dispatch: Dispatch,
         with_payload: bool = False,
+        guard: StampGuard | None = None,
+        on_restart: Callable[[], None] | None = None,
     ) -> None:
         if policy not in ("latest", "all"):
             raise ValueError(f"policy must be 'latest' or 'all', got {policy!r}")
@@ -109,6 +115,8 @@ class _Input(Generic[M]):
         self.buffer: deque[bytes] = deque(maxlen=1 if policy == "latest" else capacity)
         self.inline = dispatch == "inline"
         self.with_payload = with_payload
+        self.guard = guard
+        self.on_restart = on_restart
         self._node = node
         self._wake = node._wake
         self.received = 0
@@ -118,6 +126,10 @@ class _Input(Generic[M]):
         self.processed = 0
         self.last_processed_ns = 0
         """``time.monotonic_ns()`` of the last good message handled (0: none yet)."""
+        self.last_reject = ""
+        """Why the last rejected message was rejected."""
+        self.expect_within_ns = 0
+        """Health says so when no good message has come for this long (0: never)."""
 
     def on_payload(self, payload: bytes) -> None:
         """Zenoh's delivery thread: buffer, then run inline if the node is idle, else ring."""
@@ -224,7 +236,7 @@ class Node:
         self.notes: list[str] = []
         self._conditions: dict[str, tuple[str, str]] = {}
         self._health_pub = bus.publisher(self.keys.health(service))
-        self._last_health: tuple[int, dict[str, int], dict[str, int]] | None = None
+        self._last_health: tuple[int, dict, dict[str, int], int] | None = None
         self._announced = False
         folder = os.environ.get(TRACE_ENV)
         self._trace = _InputTrace(folder, service) if folder else None
@@ -241,17 +253,29 @@ class Node:
         capacity: int = 10_000,
         dispatch: Dispatch | None = None,
         with_payload: bool = False,
+        judge_stamps: bool = True,
+        on_restart: Callable[[], None] | None = None,
+        expect_within_s: float | None = None,
     ) -> _Input[M]:
         """Call ``handler(message)`` for each message on ``topic`` (see the module docstring
         for ``policy`` and ``dispatch``; dispatch defaults to inline for ``all``).
         ``with_payload``: call ``handler(message, payload)`` with the validated wire bytes too
-        (recorders keep them as they came)."""
+        (recorders keep them as they came). ``judge_stamps``: reject stamps far ahead of or
+        behind the stream (settings ``clock``, :mod:`.clock`); off for inputs that mix several
+        sources' clocks. ``on_restart()`` runs, before the message is handled, when the
+        stream's source is judged to have restarted with a new clock. ``expect_within_s``:
+        Health says so when no good message has come for that long (an input the service
+        cannot work without)."""
         key = self.keys.topic(topic)
         if dispatch is None:
             dispatch = "inline" if policy == "all" else "loop"
+        guard = StampGuard.from_settings(self.settings.clock) if judge_stamps else None
         inp = _Input(
-            self, topic, key, topic_type(topic), handler, policy, capacity, dispatch, with_payload
-        )
+            self, topic, key, topic_type(topic), handler, policy, capacity, dispatch,
+            with_payload, guard, on_restart,
+        )  # fmt: skip
+        if expect_within_s is not None:
+            inp.expect_within_ns = int(expect_within_s * 1e9)
         self._inputs.append(inp)
         self.bus.subscribe(key, inp.on_payload)
         return inp
@@ -290,6 +314,7 @@ class Node:
         """Count a message the service itself refuses (valid on the wire, unusable for it, e.g.
         an image of the wrong size) in ``Health.rejected[topic]``, with a rate-limited log."""
         inp.rejected += 1
+        inp.last_reject = reason
         self._ratelog.log(
             logging.WARNING, f"reject:{inp.topic}:{reason}", "rejected %s: %s", inp.topic, reason
         )
@@ -399,6 +424,7 @@ class Node:
                 message = decode(item.message_type, payload)
             except RejectedMessage as exc:
                 item.rejected += 1
+                item.last_reject = "malformed"
                 self._ratelog.log(
                     logging.WARNING,
                     f"reject:{item.topic}",
@@ -406,6 +432,8 @@ class Node:
                     item.topic,
                     exc,
                 )
+                return
+            if item.guard is not None and not self._judge(item, message):
                 return
             if self._trace is not None:
                 self._trace.write(item.topic, message)
@@ -417,6 +445,38 @@ class Node:
             item.last_processed_ns = time.monotonic_ns()
         else:
             self._call("event", item)
+
+    def _judge(self, item: _Input, message: Message) -> bool:
+        """Whether ``message``'s stamp may be handled (see :mod:`.clock`); a source restart
+        runs the input's ``on_restart`` first."""
+        guard = item.guard
+        newest = guard.newest_ns
+        verdict = guard.judge(message.stamp_ns, time.monotonic_ns())
+        if verdict == "ok":
+            return True
+        if verdict == "restart":
+            self.log.warning(
+                "%s: the source's clock restarted (stamps now near %d, were near %s); "
+                "starting afresh",
+                item.topic,
+                message.stamp_ns,
+                newest,
+            )
+            if item.on_restart is not None:
+                self._call(f"{item.topic}:restart", item.on_restart)
+            return True
+        item.rejected += 1
+        item.last_reject = f"stamp {verdict}"
+        self._ratelog.log(
+            logging.WARNING,
+            f"stamp:{item.topic}:{verdict}",
+            "rejected %s: stamp %d is %s of the stream (newest accepted %s)",
+            item.topic,
+            message.stamp_ns,
+            "ahead" if verdict == "ahead" else "behind",
+            newest,
+        )
+        return False
 
     def _call(self, where: str, fn: Callable, *args) -> None:
         t0 = time.perf_counter_ns()
@@ -464,34 +524,32 @@ class Node:
         self._conditions.pop(key, None)
 
     def health(self) -> Health:
-        """The current vital signs (also published every ``health_period_s``)."""
+        """The current vital signs (also published every ``health_period_s``). ``status`` and
+        ``reasons`` judge what happened since the previous call (rejections, drops, errors),
+        what has not happened for too long (an expected input), and lasting conditions."""
         now = time.monotonic_ns()
-        received = {i.topic: i.received for i in self._inputs}
+        counts = {i.topic: (i.received, i.rejected, i.processed, i.dropped) for i in self._inputs}
         sent = {p.topic: p.sent for p in self._publishers}
         rates: dict[str, float] = {}
+        before: dict[str, tuple[int, int, int, int]] = {}
+        errors0 = 0
         if self._last_health is not None:
-            t0, rx0, tx0 = self._last_health
+            t0, before, tx0, errors0 = self._last_health
             dt = max((now - t0) / 1e9, 1e-9)
-            rates.update({f"in:{k}": (v - rx0.get(k, 0)) / dt for k, v in received.items()})
+            rates.update(
+                {f"in:{k}": (c[0] - before.get(k, (0,))[0]) / dt for k, c in counts.items()}
+            )
             rates.update({f"out:{k}": (v - tx0.get(k, 0)) / dt for k, v in sent.items()})
-        self._last_health = (now, received, sent)
-        dropped: dict[str, int] = {}
-        for i in self._inputs:
-            if i.dropped:
-                dropped[i.topic] = i.dropped
-        p50, p99 = self._proc.percentiles()
+        self._last_health = (now, counts, sent, self.errors)
+        reasons = self._reasons(now, counts, before, self.errors - errors0)
         status = self.status
-        reasons: list[str] = []
-        if self.errors:
-            reasons.append(f"{self.errors} handler errors")
-        if dropped:
-            reasons.append("inputs dropped: " + ", ".join(sorted(dropped)))
         for level, reason in self._conditions.values():
             reasons.append(reason)
-            if level == "error" or status == "error":
+            if level == "error":
                 status = "error"
         if status == "ok" and reasons:
             status = "degraded"
+        p50, p99 = self._proc.percentiles()
         return Health(
             stamp_ns=time.time_ns(),
             service=self.service,
@@ -499,9 +557,9 @@ class Node:
             status=status,
             uptime_s=(now - self._started_ns) / 1e9,
             rates_hz=rates,
-            received=received,
-            rejected={i.topic: i.rejected for i in self._inputs},
-            dropped=dropped,
+            received={k: c[0] for k, c in counts.items()},
+            rejected={k: c[1] for k, c in counts.items()},
+            dropped={k: c[3] for k, c in counts.items() if c[3]},
             errors=self.errors,
             proc_p50_ms=0.0 if p50 != p50 else p50,
             proc_p99_ms=0.0 if p99 != p99 else p99,
@@ -512,6 +570,31 @@ class Node:
             host=_HOST,
             pid=os.getpid(),
         )
+
+    def _reasons(self, now: int, counts: dict, before: dict, new_errors: int) -> list[str]:
+        reasons: list[str] = []
+        for i in self._inputs:
+            _, rej0, proc0, drop0 = before.get(i.topic, (0, 0, 0, 0))
+            _, rej, proc, drop = counts[i.topic]
+            if rej > rej0:
+                what = "rejecting every" if proc == proc0 else f"rejected {rej - rej0}"
+                reasons.append(f"{what} {i.topic} ({i.last_reject})")
+            if drop > drop0:
+                reasons.append(f"dropped {drop - drop0} {i.topic} (input queue full)")
+            if i.expect_within_ns:
+                since = now - (i.last_processed_ns or self._started_ns)
+                if since > i.expect_within_ns:
+                    reasons.append(
+                        f"no {i.topic} for {since / 1e9:.0f} s"
+                        if i.last_processed_ns
+                        else f"no {i.topic} yet"
+                    )
+        if new_errors:
+            reasons.append(f"{new_errors} handler errors (last: {self.last_error[:120]})")
+        peers = self.bus.peer_count()
+        if peers == 0 and now - self._started_ns > _LONELY_AFTER_NS:
+            reasons.append("no peers")
+        return reasons
 
     def publish_health(self) -> None:
         h = self.health()

@@ -1,12 +1,15 @@
 """router: a Zenoh router as a followbot service, for deployments across machines.
 
 There is no ``zenohd`` on the package registries; this is a Python process in router mode.
-Run one where every machine can reach it (by default it listens on all interfaces, port 7447)
-and point every service at it, e.g. ``--mode client --connect tcp/<router-host>:7447``, or use
-peers with ``--connect``. It publishes Health and a liveliness token like any service.
+By default it listens on loopback only (tcp/127.0.0.1:7447); to serve other machines name the
+address they reach it at, and point every service at it, e.g. ``--mode client --connect
+tcp/<router-host>:7447``, or use peers with ``--connect``. It publishes Health and a
+liveliness token like any service. With ``zenoh.tls``, ``zenoh.auth`` and ``zenoh.access`` it
+admits only processes with a certificate of the deployment's CA and enforces who may publish
+what (docs/compose.md, "Secure deployment").
 
-    followbot run router                                   # tcp/0.0.0.0:7447
-    followbot run router --listen tcp/127.0.0.1:7500       # loopback only, another port
+    followbot run router                                   # tcp/127.0.0.1:7447
+    followbot run router --listen tcp/192.168.1.10:7447    # the robot's address on the LAN
 
 In peer mode (``--mode peer``) it is a member of a peer mesh that also serves clients on its
 listen endpoints: ``followbot up`` runs it so, joined to this machine's rendezvous, as the
@@ -20,13 +23,13 @@ import msgspec
 
 from .node import Node
 from .service import service_main
-from .settings import NodeSettings, ZenohSettings
+from .settings import DEFAULT_ENDPOINT, NodeSettings, ZenohSettings
 
 __all__ = ["RouterSettings", "main"]
 
 
 def _router_zenoh() -> ZenohSettings:
-    return ZenohSettings(mode="router", listen=["tcp/0.0.0.0:7447"])
+    return ZenohSettings(mode="router", listen=[DEFAULT_ENDPOINT])
 
 
 class RouterSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):

@@ -14,6 +14,7 @@ from typing import TypeVar
 import msgspec
 import yaml
 
+from .argtypes import positive_float
 from .node import Node, configure_logging, zenoh_node
 from .session import SessionError, add_zenoh_arguments, overrides_from_args
 from .settings import NodeSettings, SettingsError, load_settings
@@ -43,8 +44,9 @@ def add_run_arguments(
     parser.add_argument("--config", metavar="FILE", help=config_help)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
     parser.add_argument(
-        "--duration", type=float, metavar="S", help="stop after S seconds (default: never)"
-    )
+        "--duration", type=positive_float, metavar="S",
+        help="stop after S seconds (default: never)",
+    )  # fmt: skip
     parser.add_argument("--print-settings", action="store_true", help=print_help)
     add_zenoh_arguments(parser)
 

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import socket
 
 import zenoh
 
+from .security import zenoh_entries
 from .settings import DEFAULT_ENDPOINT, ZenohSettings
 
 __all__ = [
@@ -75,6 +77,17 @@ def zenoh_config(settings: ZenohSettings, *, hub: bool | None = None) -> zenoh.C
             put("connect/timeout_ms", int(settings.connect_timeout_s * 1000))
     if listen:
         put("listen/endpoints", listen)
+    elif settings.mode != "client" and isinstance(
+        json.loads(conf.get_json("listen/endpoints")), dict
+    ):
+        # Nothing says where to listen (a mode-dependent dict is zenoh's own default: every
+        # interface, tcp/[::]). Listen on loopback only; with TLS on, nowhere (a plain
+        # listener would admit peers without a certificate).
+        loopback = DEFAULT_ENDPOINT if settings.mode == "router" else "tcp/127.0.0.1:0"
+        put("listen/endpoints", [] if settings.tls.enabled else [loopback])
+    endpoints = [*settings.connect, *settings.listen]
+    for key, value in zenoh_entries(settings.tls, settings.auth, settings.access, endpoints):
+        put(key, value)
     return conf
 
 
@@ -147,9 +160,16 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+        help="endpoint to listen on, e.g. tcp/192.168.1.10:7447 (repeatable; default: "
+        "loopback only)",
     )
     g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 configuration file")
+    g.add_argument(
+        "--identity",
+        metavar="DIR/NAME",
+        help="secure deployment: connect as identity NAME with the files `followbot certs` "
+        "wrote to DIR (NAME.pem, NAME.key, NAME.password, ca.pem), e.g. certs/operator",
+    )
     g.add_argument("--robot", help="robot name; keys live under followbot/<robot>/")
 
 
@@ -166,4 +186,11 @@ def overrides_from_args(args: argparse.Namespace) -> list[str]:
         out.append(f"zenoh.config={json.dumps(args.zenoh_config)}")
     if getattr(args, "robot", None):
         out.append(f"robot={json.dumps(args.robot)}")
+    if getattr(args, "identity", None):
+        folder, name = os.path.split(args.identity)
+        files = {"tls.ca": "ca.pem", "tls.cert": f"{name}.pem", "tls.key": f"{name}.key",
+                 "auth.password_file": f"{name}.password"}  # fmt: skip
+        for key, file in files.items():
+            out.append(f"zenoh.{key}={json.dumps(os.path.join(folder, file))}")
+        out.append(f"zenoh.auth.user={json.dumps(name)}")
     return out

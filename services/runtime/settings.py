@@ -16,6 +16,9 @@ from typing import Annotated, Any, Literal, TypeVar
 import msgspec
 import yaml
 
+from .clock import ClockSettings
+from .security import AccessSettings, AuthSettings, TlsSettings
+
 __all__ = [
     "DEFAULT_ENDPOINT",
     "NodeSettings",
@@ -64,16 +67,30 @@ class ZenohSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     it is dropped (zenoh's wait_before_drop; its default is 1 ms). At 1 ms the stages lost
     about 1 output in 12 000 at 200 scans/s whenever another process took the CPU for a
     moment (make soak); a congested link, not a busy scheduler, should be what drops."""
+    # Security (security.py; docs/compose.md "Secure deployment"): all off by default.
+    tls: TlsSettings = msgspec.field(default_factory=TlsSettings)
+    """Mutual TLS: ca, cert, key (PEM files); endpoints must then be tls/host:port."""
+    auth: AuthSettings = msgspec.field(default_factory=AuthSettings)
+    """Zenoh user/password: user + password_file, or (router) dictionary_file."""
+    access: AccessSettings = msgspec.field(default_factory=AccessSettings)
+    """Router: access rules, robot + identities (identity -> roles); default deny."""
 
 
 class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """Settings every service has."""
 
     robot: str = "robot"
-    """Robot name: every key lives under followbot/<robot>/."""
+    """Robot name: every key lives under followbot/<robot>/ (letters, digits, '_', '-')."""
     zenoh: ZenohSettings = msgspec.field(default_factory=ZenohSettings)
     health_period_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
+    clock: ClockSettings = msgspec.field(default_factory=ClockSettings)
+    """How the stamps of received messages are judged (docs/runtime.md, "Clocks")."""
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    def __post_init__(self) -> None:
+        from followbot.schemas import Keys
+
+        Keys(self.robot)  # a name that cannot be a key chunk is refused here, with the rule
 
 
 def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> type[NodeSettings]:

@@ -778,6 +778,28 @@ class Tracker:
         self._breaks.clear()
         self._forget_looks()
 
+    def restart_clock(self) -> None:
+        """The candidates' source restarted with a new clock: start afresh (every track, the
+        target and the history go; whether vision is there stays)."""
+        alive = self.vision_alive
+        self.__init__(self.settings)
+        self.vision_alive = alive
+
+    def restart_odometry(self) -> None:
+        """The odometry's source restarted with a new clock: forget its history."""
+        self.odometry = OdometryBuffer(
+            max_extrapolation_ns=int(self.settings.max_odometry_extrapolation_s * _NS)
+        )
+
+    def lose_target_stale(self, frame_id: str) -> TrackState | None:
+        """No scan has moved the clock forward for too long (the node judges it on its wall
+        clock): the target is declared lost, and the state saying so is returned (None when
+        there is no target). Its last position stays the place to look for it again."""
+        if self.target_id < 0:
+            return None
+        self._lose_target(self.tracks[self.target_id])
+        return self._target_output(self._last_stamp or 0, frame_id, ["stale_input"], [])
+
     # ------------------------------------------------------------------ the step
 
     def step(self, candidates: PersonCandidates) -> tuple[TrackState, People]:

@@ -11,6 +11,7 @@ lock-step source always gets its answer (docs/runtime.md, rules 2 and 4).
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from typing import Annotated
 
@@ -26,12 +27,16 @@ from .core import Tracker, TrackerSettings
 
 __all__ = ["TrackerNodeSettings", "main", "setup"]
 
+#: Scans in a row answered ``out_of_order`` before Health says so.
+OUT_OF_ORDER_STREAK = 10
+
 
 _TrackerNodeBase = with_node_settings(TrackerSettings, "_TrackerNodeBase", __name__)
 
 
 class TrackerNodeSettings(_TrackerNodeBase, kw_only=True, forbid_unknown_fields=True):
     def __post_init__(self) -> None:
+        super().__post_init__()
         core_settings(self)  # TrackerSettings' checks (the estimator) while the settings load
 
     vision_service: str = "vision_verify"
@@ -40,6 +45,10 @@ class TrackerNodeSettings(_TrackerNodeBase, kw_only=True, forbid_unknown_fields=
     """Lock-step runs: hold the candidates of scan k until odometry stamped at or after k has
     arrived (it comes from the source, the candidates through laser_legs: either may come
     first), at most this long. 0 (live, or no odometry): never wait."""
+    stale_after_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 1.0
+    """A target that no scan has moved the tracker's clock past for this long (wall clock:
+    scans stopped, or their stamps stand still) is declared lost and published so, and the
+    controller stops. 0: never (lock-step runs, whose source sets the pace)."""
     lockstep_vision_wait_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 0.0
     """Lock-step runs with vision: hold the candidates of scan k until the verification due at
     k (of the scan max(vision_lag_scans, 1) steps earlier) has arrived, at most this long.
@@ -99,13 +108,48 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
             while held_models and held_models[0].model_id <= wanted:
                 tracker.set_target_model(held_models.pop(0))
         stepped.append(msg.stamp_ns)
+        if msg.stamp_ns > clock["stamp"]:
+            clock.update(stamp=msg.stamp_ns, at=time.monotonic(), frame=msg.frame_id)
         target = tracker.step_target(msg)
+        if "out_of_order" in target.flags:
+            clock["out_of_order"] += 1
+            if clock["out_of_order"] >= OUT_OF_ORDER_STREAK:
+                node.set_condition(
+                    "order", "degraded", f"{clock['out_of_order']} scans in a row out of order"
+                )
+        elif clock["out_of_order"]:
+            clock["out_of_order"] = 0
+            node.clear_condition("order")
         target_pub.put(target)  # the controller's input first, then the bookkeeping
         people_pub.put(tracker.step_rest())
         notes = [f"status:{target.status}", *target.flags]
         if held is not None:
             notes += [f"lockstep_waits={held.waits}", f"lockstep_wait_timeouts={held.timeouts}"]
         node.notes = notes[:16]
+
+    clock = {"stamp": -1, "at": time.monotonic(), "frame": "base_link", "out_of_order": 0}
+
+    def check_stale() -> None:
+        if time.monotonic() - clock["at"] <= settings.stale_after_s:
+            return
+        lost = tracker.lose_target_stale(clock["frame"])
+        if lost is not None:
+            node.log.warning(
+                "no scan for %.1f s (wall clock): target declared lost", settings.stale_after_s
+            )
+            target_pub.put(lost)
+
+    if settings.stale_after_s > 0:
+        node.every(min(0.1, settings.stale_after_s / 2), check_stale, name="stale_target")
+
+    def restart() -> None:
+        tracker.restart_clock()
+        stepped.clear()
+        verified_with.clear()
+        held_models.clear()
+        newest.update(odom=-1, verification=-1, model=0)
+        clock.update(stamp=-1, at=time.monotonic(), out_of_order=0)
+        node.clear_condition("order")
 
     held = None
     on_candidates = step
@@ -127,7 +171,7 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
         if held is not None:
             held.release()
 
-    node.subscribe("sensors/odom", on_odometry, policy="all")
+    node.subscribe("sensors/odom", on_odometry, policy="all", on_restart=tracker.restart_odometry)
     node.subscribe("perception/verification", on_verification, policy="all")
     # Keep the model and answer queries with it: the tracker lives on the robot, so a vision
     # worker that restarts (another machine, a crash) recovers the model instead of rebuilding.
@@ -143,9 +187,24 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
             tracker.set_target_model(model)
         model_pub.serve(model)
 
-    node.subscribe("perception/target_model", on_model, policy="all")
-    node.subscribe("perception/candidates", on_candidates, policy="all")
-    node.watch_alive(settings.vision_service, tracker.set_vision_alive)
+    # models (rare; loaded from files or other workers) carry stamps of their own making
+    node.subscribe("perception/target_model", on_model, policy="all", judge_stamps=False)
+    node.subscribe(
+        "perception/candidates",
+        on_candidates,
+        policy="all",
+        on_restart=restart,
+        expect_within_s=1.0,
+    )
+
+    def on_vision_alive(alive: bool) -> None:
+        if alive:
+            node.clear_condition("vision")
+        elif tracker.vision_alive:
+            node.set_condition("vision", "degraded", f"{settings.vision_service} gone: laser alone")
+        tracker.set_vision_alive(alive)
+
+    node.watch_alive(settings.vision_service, on_vision_alive)
     node.log.info(
         "tracker: estimator=%s vision_lag_scans=%d acquire=%s",
         settings.estimator,

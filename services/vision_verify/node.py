@@ -167,13 +167,30 @@ class VisionVerify:
             self.on_image,
             policy="all" if settings.answer_every_scan else "latest",
             capacity=8,
+            on_restart=self.restart_images,
         )
         self.in_candidates = node.subscribe(
-            "perception/candidates", self.on_candidates, capacity=256, dispatch="loop"
+            "perception/candidates",
+            self.on_candidates,
+            capacity=256,
+            dispatch="loop",
+            on_restart=self.restart_candidates,
         )
-        node.subscribe("perception/target_command", self.on_command, dispatch="loop")
-        node.subscribe("perception/target_model", self.on_model, capacity=8, dispatch="loop")
-        node.subscribe("sensors/scan", self.on_scan, capacity=16, dispatch="loop")
+        # commands and models carry stamps of their makers' clocks (an operator's wall clock,
+        # a file's): they are not judged against the sensors' stream
+        node.subscribe(
+            "perception/target_command", self.on_command, dispatch="loop", judge_stamps=False
+        )
+        node.subscribe(
+            "perception/target_model",
+            self.on_model,
+            capacity=8,
+            dispatch="loop",
+            judge_stamps=False,
+        )
+        node.subscribe(
+            "sensors/scan", self.on_scan, capacity=16, dispatch="loop", on_restart=self.scans.clear
+        )
         node.every(0.02, self.on_timer, name="vision_timer")
         node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
         node.every(settings.health_period_s, self.update_notes, name="notes")
@@ -196,6 +213,19 @@ class VisionVerify:
             if (cam.width, cam.height) == (image_width, image_height):
                 return cam
         return next(iter(self.s.cameras.values()))
+
+    def restart_images(self) -> None:
+        """The camera's source restarted with a new clock: its old frames go."""
+        self.frames = []
+        self.period_ns = self.min_period_ns = 0
+        self.acq_images = []
+
+    def restart_candidates(self) -> None:
+        """The scans' source restarted with a new clock: what waited on the old clock goes."""
+        self.pending.clear()
+        self.last_judged_ns = -1
+        self.scans.clear()
+        self.acq_cands.clear()
 
     # ------------------------------------------------------------------ images
 

@@ -181,3 +181,20 @@ def test_non_finite_goal_is_refused():
     ctl = FollowController(RULE)
     c = ctl._limit(float("nan"), 0.0, 0.0, "x", 0.1)
     assert (c.linear_mps, c.reason) == (0.0, "invalid")
+
+
+def test_the_hardware_caps_bound_the_settings_and_every_command():
+    with pytest.raises(
+        ValueError, match=r"max_speed_mps 50\.0 exceeds hardware_max_speed_mps 1\.0"
+    ):
+        ControllerSettings(max_speed_mps=50.0)
+    with pytest.raises(ValueError, match=r"max_turn_deg_s 400\.0 exceeds"):
+        ControllerSettings(max_turn_deg_s=400.0)
+    with pytest.raises(msgspec.ValidationError):  # no base is rated beyond the wire's bound
+        msgspec.convert({"hardware_max_speed_mps": 10.0}, ControllerSettings)
+    ctl = FollowController(
+        ControllerSettings(max_speed_mps=1.0, accel_mps2=100.0, avoid_obstacles=False)
+    )
+    far = TrackState(stamp_ns=1, status="tracking", x_m=9.0, y_m=0.0)
+    c = ctl.on_target(far, 1.0)
+    assert c.linear_mps == 1.0 and c.reason == "max_speed"

@@ -25,6 +25,7 @@ from followbot.services.laser_legs.node import LaserLegsSettings, setup
 from followbot.services.laser_legs.prediction import OdometryBuffer, TargetPredictor
 from followbot.services.laser_legs.scene import make_scan, person_legs
 from followbot.services.runtime.bus import FakeNetwork
+from followbot.services.runtime.clock import ClockSettings
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.settings import SettingsError, load_settings
 
@@ -50,6 +51,8 @@ def target(stamp_ns: int, x: float, y: float, status="tracking", vx=0.0, vy=0.0,
 
 class Harness:
     def __init__(self, **settings) -> None:
+        # the tests' stamps step faster than the tests' own clock: no stamp is "ahead"
+        settings.setdefault("clock", ClockSettings(max_ahead_s=None))
         self.net = FakeNetwork()
         self.node = Node("laser_legs", LaserLegsSettings(**settings), self.net.bus("laser_legs"))
         self.predictor = setup(self.node, self.node.settings)
