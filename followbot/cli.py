@@ -3,6 +3,7 @@
 followbot run <service> [--config FILE] [--set key=value] ...   run one service
 followbot run <a>+<b>+... [--config FILE] ...                   run several in one process
 followbot services                                              list runnable services
+followbot status [--robot R] [--watch]                          live services and their health
 followbot topics                                                list topics and types
 followbot schemas [--output DIR | --check]                      JSON Schema of messages
 followbot demo                                                  live pipeline smoke
@@ -33,7 +34,10 @@ def _services():
 
 
 def _cmd_run(args: argparse.Namespace, rest: list[str]) -> int:
+    from followbot.services.runtime.lifeline import watch_lifeline
     from followbot.services.runtime.plugins import UnknownPlugin
+
+    watch_lifeline()  # started by `followbot up`: end with it, however it ends
 
     if "+" in args.service:  # several services in one process (docs/runtime.md)
         from followbot.services.runtime.container import exit_now
@@ -101,6 +105,7 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "demo": ("followbot.demo", "main", "the whole system follows a person in the simulator"),
     "smoke": ("followbot.smoke", "main", "transport smoke: synthetic sensors to a monitor"),
     "up": ("followbot.up", "main", "start and supervise a deployment from a compose file"),
+    "status": ("followbot.status", "main", "every live service of a robot: health, host, pid"),
     "target": ("followbot.target", "main", "acquire / reset / save / load the target model"),
     "eval": ("followbot.eval_cli", "main", "scenarios x presets through the pipeline: report"),
     "sweep": ("followbot.sweep", "main", "every scenario over several seeds: the issues' figures"),

@@ -20,13 +20,18 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 
 def pytest_addoption(parser):
     parser.addoption("--run-soak", action="store_true", help="run the long soak tests")
-    parser.addoption("--run-chaos", action="store_true", help="run the fault-injection tests")
+    parser.addoption(
+        "--run-chaos", action="store_true", help="run the fault-injection and start-up checks"
+    )
 
 
 def pytest_collection_modifyitems(config, items):
     opt_in = {
         "soak": ("--run-soak", "soak test: opt in with `make soak` (--run-soak)"),
-        "chaos": ("--run-chaos", "fault injection: opt in with `make chaos` (--run-chaos)"),
+        "chaos": (
+            "--run-chaos",
+            "fault injection or start-up check: opt in with `make chaos` (--run-chaos)",
+        ),
     }
     for marker, (option, reason) in opt_in.items():
         if config.getoption(option):

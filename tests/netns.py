@@ -2,7 +2,9 @@
 
 ``two_hosts()`` makes namespaces ``<id>_robot`` and ``<id>_offboard`` with addresses
 10.<a>.<b>.1 and .2 on a private /24 that exists only between them, loopback up, and removes
-them afterwards. Needs root and iproute2; :func:`unavailable` says why not, for a skip.
+them afterwards. ``one_host()`` makes one namespace with only its loopback: a machine of its
+own whose rendezvous port (the embedded default's 127.0.0.1:7447) no other test or program
+can hold. Needs root and iproute2; :func:`unavailable` says why not, for a skip.
 """
 
 from __future__ import annotations
@@ -64,3 +66,15 @@ def two_hosts():
     finally:
         for ns in made:
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+
+
+@contextmanager
+def one_host():
+    """A namespace with loopback up and nothing else (a private 127.0.0.1)."""
+    host = Host("solo", f"fb{os.getpid() % 10000}{random.randrange(1000)}_solo", "127.0.0.1")
+    _ip("netns", "add", host.netns)
+    try:
+        _ip("-n", host.netns, "link", "set", "lo", "up")
+        yield host
+    finally:
+        subprocess.run(["ip", "netns", "del", host.netns], capture_output=True)

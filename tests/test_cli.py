@@ -22,7 +22,7 @@ def test_help_lists_the_commands():
     out = followbot("--help")
     assert out.returncode == 0
     for cmd in ("run", "services", "topics", "schemas", "demo", "smoke", "bench", "eval", "up",
-                "appearance"):  # fmt: skip
+                "appearance", "status"):  # fmt: skip
         assert cmd in out.stdout
 
 

@@ -32,7 +32,7 @@ from .detectors import REGISTRY, make_detector
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
 
-__all__ = ["LaserLegsSettings", "build_detector", "main", "setup"]
+__all__ = ["LaserLegsSettings", "build_detector", "check", "main", "setup"]
 
 
 class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
@@ -144,6 +144,19 @@ def build_detector(
     if settings.self_filter is not None:
         return SelfFilteredDetector(detector, settings.self_filter)
     return detector
+
+
+def check(settings: LaserLegsSettings) -> None:
+    """Build the configured detectors and load every file they read (a learned detector's
+    model), before any network is opened: a missing or bad file is a ValueError naming it."""
+    for while_lost in (False, True):
+        if while_lost and settings.detector_settings_while_lost is None:
+            continue
+        detector = build_detector(settings, while_lost=while_lost)
+        inner = getattr(detector, "inner", detector)  # under the robot-body filter
+        check_files = getattr(inner, "check", None)
+        if callable(check_files):
+            check_files()
 
 
 def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
@@ -299,4 +312,4 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return service_main("laser_legs", LaserLegsSettings, setup, argv, __doc__)
+    return service_main("laser_legs", LaserLegsSettings, setup, argv, __doc__, check)

@@ -32,17 +32,23 @@ import msgspec
 import yaml
 
 from .security import SecuritySpec, compose_identities, compose_security
-from .settings import _merge
+from .session import is_embedded_default
+from .settings import ZenohSettings, _merge
 
 __all__ = [
     "PRESETS",
     "Compose",
     "ComposeError",
+    "RouterSpec",
     "ServiceSpec",
     "check_services",
+    "client_of",
     "group_settings",
+    "is_router",
     "load_compose",
+    "on_embedded_default",
     "process_groups",
+    "reachable",
     "service_settings",
 ]
 
@@ -96,12 +102,19 @@ class ServiceSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     Zenoh settings, ``restart`` and ``stop_all_on_exit``."""
 
 
+class RouterSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    listen: str | None = None
+    """Where the router ``followbot up`` starts listens (default: a free loopback port)."""
+
+
 class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     name: str = "followbot"
     robot: _NAME = "robot"
     preset: Literal["thesis", "bellotto", "livingston", "ristic", "zhuang"] | None = None
     zenoh: dict[str, Any] = {}
     hosts: dict[_NAME, HostSpec] = {}
+    router: RouterSpec = msgspec.field(default_factory=RouterSpec)
+    """The router ``up`` starts for the services whose settings name no Zenoh endpoints."""
     services: Annotated[dict[_NAME, ServiceSpec], msgspec.Meta(min_length=1)]
     security: SecuritySpec | None = None
     """Mutual TLS, passwords and access rules for every service (docs/compose.md, "Secure
@@ -264,3 +277,45 @@ def check_services(compose: Compose, available: list[str]) -> None:
 
 def _deep_copy(d: dict[str, Any]) -> dict[str, Any]:
     return msgspec.convert(msgspec.to_builtins(d), dict[str, Any])
+
+
+# --------------------------------------------------------------------------- topology
+
+
+def _zenoh_of(settings: dict[str, Any]) -> ZenohSettings | None:
+    try:
+        return msgspec.convert(settings.get("zenoh") or {}, ZenohSettings, strict=False)
+    except msgspec.ValidationError:
+        return None  # the service's own check reports it
+
+
+def on_embedded_default(settings: dict[str, Any]) -> bool:
+    """Whether a process started with ``settings`` (one service's, or a group's) would leave
+    its topology to Zenoh's embedded default (no endpoints, no config file, not a client)."""
+    z = _zenoh_of(settings)
+    # with TLS, endpoints must be named (tls/...): a plain router would not admit it
+    return z is not None and is_embedded_default(z) and not z.tls.enabled
+
+
+def is_router(settings: dict[str, Any]) -> bool:
+    z = _zenoh_of(settings)
+    return z is not None and z.mode == "router"
+
+
+def client_of(settings: dict[str, Any], endpoint: str) -> dict[str, Any]:
+    """``settings`` with the process made a Zenoh client of the router at ``endpoint``."""
+    out = _deep_copy(settings)
+    out.setdefault("zenoh", {}).update(mode="client", connect=[endpoint])
+    return out
+
+
+def reachable(endpoint: str) -> str:
+    """Where a process of this machine reaches a listen ``endpoint`` (a wildcard address is
+    reached on loopback)."""
+    proto, _, rest = endpoint.partition("/")
+    host, sep, port = rest.rpartition(":")
+    if sep and host in ("0.0.0.0", ""):
+        host = "127.0.0.1"
+    elif sep and host == "[::]":
+        host = "[::1]"
+    return f"{proto}/{host}{sep}{port}" if sep else endpoint

@@ -1,10 +1,20 @@
 """monitor: watch topics like ``ros2 topic hz``: rates, losses, rejects and latency.
 
 Subscribes to the topics in its settings, decodes and validates every message (so it also
-shows malformed traffic), counts sequence-number gaps as losses, and measures age on arrival
-(wall clock now minus the message's ``stamp_ns``: meaningful on one host or NTP-synced hosts
-for live stamps). Logs a line per topic every ``report_period_s`` and, at exit, writes a JSON
-summary if ``summary`` names a file.
+shows malformed traffic), counts sequence-number gaps as losses, and measures each message's
+age on arrival against the clock of its stream:
+
+- a stream stamped with the wall clock (live sensors, the synthetic publisher): this host's
+  clock at arrival minus ``stamp_ns``, the transport latency (meaningful on one host, or on
+  hosts whose clocks are synchronised);
+- a stream on a clock of its own (the simulator's starts near 0, a replay keeps old stamps:
+  its first stamp is more than an hour from this host's clock): how much later than its
+  stamp says a message came, the stream's clock aligned to this host's by its earliest
+  message (the smallest arrival-minus-stamp seen). That shows delays and bursts; it cannot
+  show a constant latency.
+
+Logs a line per topic every ``report_period_s`` and, at exit, writes a JSON summary if
+``summary`` names a file (``clock``: ``wall`` or ``stream``).
 
     followbot run monitor --set 'topics=[sensors/scan, sensors/odom]' --duration 10
 """
@@ -29,6 +39,9 @@ from .stats import Window
 
 __all__ = ["MonitorSettings", "TopicStats", "main"]
 
+#: A stream whose first stamp is this far from this host's clock has a clock of its own.
+OWN_CLOCK_NS = 3600 * 1_000_000_000
+
 
 class MonitorSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     topics: list[str] = msgspec.field(default_factory=lambda: ["sensors/scan"])
@@ -50,6 +63,9 @@ class TopicStats:
         self._period_age_ms = Window(1_000_000)
         self.first_ns = 0
         self.last_ns = 0
+        self.clock: str | None = None
+        """``wall`` or ``stream`` (see the module docstring), decided by the first message."""
+        self._offset_ns: int | None = None
         self._t0 = time.monotonic_ns()
         #: One entry per report period: when, how many arrived, age p99 (bounded: ~11 days).
         self.series: deque[dict] = deque(maxlen=1_000_000)
@@ -67,7 +83,14 @@ class TopicStats:
             elif gap < 0:
                 self.restarts += 1  # the publisher restarted its numbering
         self._last_seq = message.seq
-        age = (now_wall_ns - message.stamp_ns) / 1e6
+        late_ns = now_wall_ns - message.stamp_ns
+        if self.clock is None:
+            self.clock = "wall" if abs(late_ns) < OWN_CLOCK_NS else "stream"
+        if self.clock == "stream":
+            if self._offset_ns is None or late_ns < self._offset_ns:
+                self._offset_ns = late_ns
+            late_ns -= self._offset_ns
+        age = late_ns / 1e6
         self.age_ms.add(age)
         self._period_age_ms.add(age)
 
@@ -88,6 +111,7 @@ class TopicStats:
         p50, p99 = self.age_ms.percentiles()
         return {
             "received": self.count,
+            "clock": self.clock,
             "lost": self.lost,
             "rejected": rejected,
             "publisher_restarts": self.restarts,
@@ -113,7 +137,7 @@ def setup(node: Node, settings: MonitorSettings) -> dict[str, TopicStats]:
         for t, s in stats.items():
             d = s.summary(inputs[t].rejected)
             node.log.info(
-                "%s: %d received, %.1f Hz, %d lost, %d rejected, age p50 %s ms p99 %s ms",
+                "%s: %d received, %.1f Hz, %d lost, %d rejected, age p50 %s ms p99 %s ms%s",
                 t,
                 d["received"],
                 d["rate_hz"],
@@ -121,6 +145,7 @@ def setup(node: Node, settings: MonitorSettings) -> dict[str, TopicStats]:
                 d["rejected"],
                 _fmt(d["age_p50_ms"]),
                 _fmt(d["age_p99_ms"]),
+                " (stream clock)" if d["clock"] == "stream" else "",
             )
 
     def write_summary() -> None:

@@ -10,6 +10,11 @@ what (docs/compose.md, "Secure deployment").
 
     followbot run router                                   # tcp/127.0.0.1:7447
     followbot run router --listen tcp/192.168.1.10:7447    # the robot's address on the LAN
+
+In peer mode (``--mode peer``) it is a member of a peer mesh that also serves clients on its
+listen endpoints: ``followbot up`` runs it so, joined to this machine's rendezvous, as the
+hub its services connect to. A Zenoh router linked to one peer of a mesh does not reach that
+peer's other peers (measured with zenoh 1.10: no data or liveliness crossed); a peer does.
 """
 
 from __future__ import annotations
@@ -32,9 +37,13 @@ class RouterSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
 
 
 def setup(node: Node, settings: RouterSettings) -> None:
-    if settings.zenoh.mode != "router":
-        raise ValueError(f"the router service needs zenoh.mode=router, got {settings.zenoh.mode}")
-    node.log.info("routing on %s", ", ".join(settings.zenoh.listen) or "(no listen endpoint)")
+    if settings.zenoh.mode == "client":
+        raise ValueError("the router service needs zenoh.mode=router (or peer), got client")
+    node.log.info(
+        "routing on %s (%s mode)",
+        ", ".join(settings.zenoh.listen) or "(no listen endpoint)",
+        settings.zenoh.mode,
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -57,11 +57,18 @@ def service_main(
     setup: Callable[[Node, S], object],
     argv: Sequence[str] | None,
     description: str,
+    check: Callable[[S], object] | None = None,
 ) -> int:
     """Parse options, load settings, open a node, let ``setup`` declare its I/O, run the loop.
 
+    ``check(settings)`` validates what the settings name beyond their types, every file the
+    service will load (a scenario, a model) with the service's own loading code, raising
+    ValueError (or OSError) with a message naming the setting and the file. It runs before any
+    network is opened, at start and for ``--print-settings`` (which ``followbot up`` runs for
+    every service before it starts anything, and for ``--check``).
+
     Exit codes: 0 after a clean stop (SIGINT, SIGTERM, --duration, or the service stopping
-    itself), 2 for bad options or settings, 1 when the Zenoh session cannot be opened.
+    itself), 2 for bad options, settings or files, 1 when the Zenoh session cannot be opened.
     """
     stop_requested: list[int] = []
     previous = {}
@@ -86,6 +93,12 @@ def service_main(
         except SettingsError as exc:
             print(f"followbot run {service}: {exc}", file=sys.stderr)
             return 2
+        if check is not None:
+            try:
+                check(settings)
+            except (ValueError, OSError) as exc:  # SettingsError is a ValueError
+                print(f"followbot run {service}: {exc}", file=sys.stderr)
+                return 2
         if args.print_settings:
             print(yaml.safe_dump(msgspec.to_builtins(settings), sort_keys=False), end="")
             return 0

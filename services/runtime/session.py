@@ -18,6 +18,7 @@ from .settings import DEFAULT_ENDPOINT, ZenohSettings
 __all__ = [
     "SessionError",
     "add_zenoh_arguments",
+    "is_embedded_default",
     "open_session",
     "overrides_from_args",
     "zenoh_config",
@@ -30,8 +31,13 @@ class SessionError(RuntimeError):
     """The Zenoh session could not be opened (bad endpoint, port taken, bad config file)."""
 
 
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
-    """Translate settings into a ``zenoh.Config`` (an invalid key or value raises ValueError)."""
+def zenoh_config(settings: ZenohSettings, *, hub: bool | None = None) -> zenoh.Config:
+    """Translate settings into a ``zenoh.Config`` (an invalid key or value raises ValueError).
+
+    ``hub`` matters only for the embedded default (no endpoints, no config file, not a client):
+    True binds the rendezvous, False connects to it; None decides by whether the rendezvous
+    port is free now (:func:`open_session` tries the hub and falls back, which has no race).
+    """
     conf = zenoh.Config.from_file(settings.config) if settings.config else zenoh.Config()
 
     def put(key: str, value: object) -> None:
@@ -49,16 +55,20 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
         int(settings.drop_wait_ms * 1000),  # microseconds
     )
     connect, listen = list(settings.connect), list(settings.listen)
-    if not connect and not listen and not settings.config and settings.mode != "client":
-        # The embedded default: one rendezvous port on loopback. Whoever starts first binds it
-        # (the hub); the others connect to it and listen on a port of their own, through which
-        # gossip meshes the peers directly. A peer keeps retrying its connect endpoint, so when
-        # a hub dies, the next process to start becomes the hub and everyone finds it again.
-        if _rendezvous_free():
+    if is_embedded_default(settings):
+        # The embedded default: one rendezvous port on loopback. The hub binds it; the others
+        # connect to it and listen on a port of their own, through which gossip meshes the
+        # peers directly. A peer keeps retrying its connect endpoint, so when a hub dies, the
+        # next process to start becomes the hub and everyone finds it again.
+        if hub is None:
+            hub = _rendezvous_free()
+        if hub:
             listen = [DEFAULT_ENDPOINT]
+            # fail to open rather than run alone when another process won the port
+            put("listen/exit_on_failure", True)
         else:
             connect, listen = [DEFAULT_ENDPOINT], ["tcp/127.0.0.1:0"]
-        put("listen/exit_on_failure", False)
+            put("listen/exit_on_failure", False)
     elif settings.mode == "client" and not connect:
         connect = [DEFAULT_ENDPOINT]
     if connect:
@@ -79,6 +89,16 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     for key, value in zenoh_entries(settings.tls, settings.auth, settings.access, endpoints):
         put(key, value)
     return conf
+
+
+def is_embedded_default(settings: ZenohSettings) -> bool:
+    """Whether ``settings`` leave the topology to the embedded default (docs/runtime.md)."""
+    return (
+        not settings.connect
+        and not settings.listen
+        and not settings.config
+        and settings.mode != "client"
+    )
 
 
 def free_loopback_endpoint() -> str:
@@ -108,8 +128,15 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
         zenoh.init_log_from_env_or("error")
         _zenoh_logging_started = True
     try:
-        conf = zenoh_config(settings)
-        return zenoh.open(conf)
+        if is_embedded_default(settings) and _rendezvous_free():
+            # Try to be the hub. Two processes starting together may both have seen the port
+            # free: the one whose bind fails connects to the winner instead of running alone.
+            try:
+                return zenoh.open(zenoh_config(settings, hub=True))
+            except zenoh.ZError:
+                pass
+            return zenoh.open(zenoh_config(settings, hub=False))
+        return zenoh.open(zenoh_config(settings))
     except Exception as exc:
         raise SessionError(
             f"cannot open a zenoh session (mode={settings.mode}, connect={settings.connect}, "

@@ -69,7 +69,7 @@ from followbot.services.runtime.stats import RateLimitedLog
 from .scenario import Scenario, ScenarioError, load_builtin, load_scenario
 from .simulation import Simulation
 
-__all__ = ["DEFAULT_STAGES", "SimRunner", "SimSettings", "load_scenario_setting", "main"]
+__all__ = ["DEFAULT_STAGES", "SimRunner", "SimSettings", "check", "load_scenario_setting", "main"]
 
 #: Lock-step: the outputs each pipeline stage publishes once per scan stamp (docs/runtime.md).
 DEFAULT_STAGES: dict[str, list[str]] = {
@@ -480,14 +480,19 @@ class SimRunner:
         self.node.notes = notes[:16]
 
 
-def setup(node: Node, settings: SimSettings) -> SimRunner:
+def check(settings: SimSettings) -> Scenario:
+    """Load and validate the scenario (a ValueError with the scenario's own error), before any
+    network is opened: at start, and for ``--print-settings`` / ``followbot up --check``."""
     try:
-        scenario = load_scenario_setting(settings.scenario)
+        return load_scenario_setting(settings.scenario)
     except ScenarioError as exc:
-        raise ValueError(str(exc)) from None
-    sim = Simulation(scenario, seed=settings.seed)
+        raise ValueError(f"scenario: {exc}") from None
+
+
+def setup(node: Node, settings: SimSettings) -> SimRunner:
+    sim = Simulation(check(settings), seed=settings.seed)
     return SimRunner(node, sim, settings)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return service_main("sim", SimSettings, setup, argv, __doc__)
+    return service_main("sim", SimSettings, setup, argv, __doc__, check)

@@ -598,6 +598,24 @@ class RandomTreesLegDetector:
         """The last scan's pose in the background's registered frame (None without it)."""
         return None if self.background is None else self.background.pose
 
+    def check(self) -> None:
+        """Load the model file now, so a missing or unreadable one is a ValueError naming it
+        at start (and for ``followbot up --check``), not an error at the first scan."""
+        path = self._path or default_model_path()
+        try:
+            model = self.model
+        except FileNotFoundError as exc:
+            raise ValueError(f"detector_settings.model_path: {exc}") from None
+        except Exception as exc:  # cv2.error, a bad .gz (OSError, EOFError)
+            raise ValueError(
+                f"detector_settings.model_path: cannot load the learned leg model {path}: "
+                f"{str(exc).strip()}"
+            ) from None
+        if not model.isTrained():
+            raise ValueError(
+                f"detector_settings.model_path: {path} holds no trained random-trees model"
+            )
+
     @property
     def model(self):
         """The cv2.ml.RTrees model, loaded on first use (cv2 is imported lazily)."""
