@@ -219,7 +219,9 @@ class Recording:
             if late := log.late(src):
                 record = src.removesuffix("/odom")
                 what = "line" if record == "ODOM" else "scan"
-                self.skipped[f"{src}: stamped no later than the {record} {what} before"] += late
+                self.skipped[f"{src}: stamped 0 or no later than the {record} {what} before"] += (
+                    late
+                )
         for stamp, src, message in log.messages(list(self.mapping)):
             yield stamp, self.mapping[src], message
 
@@ -443,6 +445,11 @@ def _open_carmen(path: Path, remaps: dict[str, str]) -> Recording:
         if want != have:
             raise RecordingError(f"{path}: {src} gives {have}; {dst} takes {want}")
         mapping[src] = dst
+    taken = set(mapping.values())
+    if "sensors/scan" not in taken:
+        scan = next((s for s in DEFAULT_SCAN_SOURCES if s in log.contents), None)
+        if scan is not None:
+            mapping[scan] = "sensors/scan"
     clocks = {clock(s) for s in mapping}
     if len(clocks) > 1:
         raise RecordingError(
@@ -450,12 +457,6 @@ def _open_carmen(path: Path, remaps: dict[str, str]) -> Recording:
             + "; ".join(f"{name}: {why}" for name, why in log.restamped.items())
             + ", so the other records' stamps are on another clock"
         )
-    taken = set(mapping.values())
-    if "sensors/scan" not in taken:
-        scan = next((s for s in DEFAULT_SCAN_SOURCES if s in log.contents), None)
-        if scan is not None and (not clocks or clock(scan) in clocks):
-            mapping[scan] = "sensors/scan"
-            clocks.add(clock(scan))
     if "sensors/odom" not in taken:
         scans = [s for s, d in mapping.items() if d == "sensors/scan"]
         odom = [f"{s}/odom" for s in scans if f"{s}/odom" in log.contents] + ["ODOM"]

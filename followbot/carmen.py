@@ -56,9 +56,12 @@ __all__ = [
     "CARMEN_SUFFIXES",
     "DEFAULT_SCAN_SOURCES",
     "CarmenLog",
+    "Malformed",
+    "Record",
     "SkippedLines",
     "flaser_geometry",
     "looks_like_carmen",
+    "parse_line",
 ]
 
 #: File names read as CARMEN logs (besides any file whose first lines are CARMEN records).
@@ -123,8 +126,8 @@ def flaser_geometry(n: int) -> tuple[float, float]:
 # ----------------------------------------------------------------------------- lines
 
 
-class _Bad(ValueError):
-    """A line that cannot be read: ``reason`` (counted) and ``detail`` (the first shown)."""
+class Malformed(ValueError):
+    """A line that cannot be read: ``reason`` (counted) and ``detail`` (an example shown)."""
 
     def __init__(self, reason: str, detail: str) -> None:
         super().__init__(reason)
@@ -133,8 +136,8 @@ class _Bad(ValueError):
 
 
 @dataclass
-class _Record:
-    """One readable laser or odometry line."""
+class Record:
+    """One readable laser or odometry line (:func:`parse_line`)."""
 
     name: str
     stamp_ns: int
@@ -144,6 +147,7 @@ class _Record:
     max_range_m: float | None = None  # None: a FLASER-type record, the file's ceiling applies
     remissions: np.ndarray | None = None
     odom: tuple[float, float, float, float, float] | None = None  # x y yaw v w
+    laser_pose: tuple[float, float, float] | None = None  # x y yaw of the laser (FLASER x y theta)
 
 
 def _numbers(tokens: list[str], start: int, stop: int, name: str) -> np.ndarray:
@@ -151,10 +155,10 @@ def _numbers(tokens: list[str], start: int, stop: int, name: str) -> np.ndarray:
         values = np.array(tokens[start:stop], dtype=np.float64)
     except ValueError:
         bad = next(t for t in tokens[start:stop] if not _is_float(t))
-        raise _Bad("not a number", f"{name}: {bad[:20]!r}") from None
+        raise Malformed("not a number", f"{name}: {bad[:20]!r}") from None
     if not np.isfinite(values).all():
         i = int(np.flatnonzero(~np.isfinite(values))[0])
-        raise _Bad("not a finite number", f"{name}: {tokens[start + i][:20]!r}")
+        raise Malformed("not a finite number", f"{name}: {tokens[start + i][:20]!r}")
     return values
 
 
@@ -164,10 +168,10 @@ def _floats(tokens: list[str], start: int, stop: int, name: str) -> list[float]:
         values = [float(t) for t in tokens[start:stop]]
     except ValueError:
         bad = next(t for t in tokens[start:stop] if not _is_float(t))
-        raise _Bad("not a number", f"{name}: {bad[:20]!r}") from None
+        raise Malformed("not a number", f"{name}: {bad[:20]!r}") from None
     for t, v in zip(tokens[start:stop], values, strict=True):
         if not math.isfinite(v):
-            raise _Bad("not a finite number", f"{name}: {t[:20]!r}")
+            raise Malformed("not a finite number", f"{name}: {t[:20]!r}")
     return values
 
 
@@ -181,10 +185,10 @@ def _is_float(text: str) -> bool:
 
 def _count(tokens: list[str], i: int, name: str, what: str) -> int:
     if i >= len(tokens):
-        raise _Bad("truncated", f"{name}: ends before its {what}")
+        raise Malformed("truncated", f"{name}: ends before its {what}")
     text = tokens[i]
     if not text.isdigit():
-        raise _Bad("bad count", f"{name}: {what} {text[:20]!r}")
+        raise Malformed("bad count", f"{name}: {what} {text[:20]!r}")
     return int(text)
 
 
@@ -193,11 +197,11 @@ def _stamp_ns(text: str, name: str) -> int:
     try:
         ns = int(Decimal(text).scaleb(9).to_integral_value())
     except (InvalidOperation, ValueError, OverflowError):
-        raise _Bad("bad timestamp", f"{name}: {text[:20]!r}") from None
+        raise Malformed("bad timestamp", f"{name}: {text[:20]!r}") from None
     if ns < 0:
-        raise _Bad("bad timestamp", f"{name}: {text[:20]!r} (negative)")
+        raise Malformed("bad timestamp", f"{name}: {text[:20]!r} (negative)")
     if ns >= 2**63:
-        raise _Bad("bad timestamp", f"{name}: {text[:20]!r} (too large)")
+        raise Malformed("bad timestamp", f"{name}: {text[:20]!r} (too large)")
     return ns
 
 
@@ -205,88 +209,97 @@ def _tail(tokens: list[str], i: int, name: str, needs: str) -> int:
     """Check ``timestamp hostname [logger_timestamp]`` end the line at ``i``; the stamp."""
     left = len(tokens) - i
     if left < 2:
-        raise _Bad("truncated", f"{name}: {len(tokens)} fields, {needs} needs {i + 2} or more")
+        raise Malformed("truncated", f"{name}: {len(tokens)} fields, {needs} needs {i + 2} or more")
     if left > 3:
-        raise _Bad("too many fields", f"{name}: {len(tokens)} fields, {needs} has {i + 3}")
+        raise Malformed(
+            "too many fields", f"{name}: {len(tokens)} fields, {needs} has at most {i + 3}"
+        )
     return _stamp_ns(tokens[i], name)
 
 
 def _pose(values, name: str) -> tuple[float, float, float]:
     x, y, theta = float(values[0]), float(values[1]), float(values[2])
     if abs(x) > _BIG or abs(y) > _BIG:
-        raise _Bad("out of range", f"{name}: position ({x:g}, {y:g})")
+        raise Malformed("out of range", f"{name}: position ({x:g}, {y:g})")
     return x, y, math.remainder(theta, 2 * math.pi)
 
 
 def _speed(v: float, name: str) -> float:
     if abs(v) > _BIG:
-        raise _Bad("out of range", f"{name}: speed {v:g}")
+        raise Malformed("out of range", f"{name}: speed {v:g}")
     return v
 
 
-def parse_line(tokens: list[str]) -> _Record:
-    """One laser or odometry line (its fields, name first) read and checked; :class:`_Bad`
-    says why not."""
+def parse_line(tokens: list[str]) -> Record:
+    """One laser or odometry line (its fields, name first) read and checked; raises
+    :class:`Malformed` saying why not."""
     name = tokens[0]
     if name == "ODOM":
         if len(tokens) < 9:
-            raise _Bad("truncated", f"ODOM: {len(tokens)} fields, needs 9 or more")
+            raise Malformed("truncated", f"ODOM: {len(tokens)} fields, needs 9 or more")
         v = _floats(tokens, 1, 7, name)
         stamp = _tail(tokens, 7, name, "ODOM")
         x, y, yaw = _pose(v[0:3], name)
-        return _Record(name, stamp, odom=(x, y, yaw, _speed(v[3], name), _speed(v[4], name)))
+        return Record(name, stamp, odom=(x, y, yaw, _speed(v[3], name), _speed(v[4], name)))
     if name in _FLASER_TYPE:
         n = _beams(tokens, 1, name)
         extra = 6 if name in _WITH_POSE else 0
         needs = f"a {name} of {n} beams"
         if len(tokens) < 2 + n + extra + 2:
-            raise _Bad("truncated", f"{len(tokens)} fields, {needs} needs {2 + n + extra + 2}")
+            need = 2 + n + extra + 2
+            raise Malformed("truncated", f"{name}: {len(tokens)} fields, {needs} needs {need}")
         values = _numbers(tokens, 2, 2 + n + extra, name)
         stamp = _tail(tokens, 2 + n + extra, name, needs)
         angle_min, step = flaser_geometry(n)
-        rec = _Record(name, stamp, values[:n], angle_min, step)
+        rec = Record(name, stamp, values[:n], angle_min, step)
         if extra:
+            rec.laser_pose = _pose(values[n : n + 3], name)
             x, y, yaw = _pose(values[n + 3 : n + 6], name)  # odom_x odom_y odom_theta
             rec.odom = (x, y, yaw, 0.0, 0.0)
         return rec
     if name in _RAW_TYPE or name in _ROBOT_TYPE:
         if len(tokens) < 9:
-            raise _Bad("truncated", f"{name}: {len(tokens)} fields, ends in its laser config")
+            raise Malformed("truncated", f"{name}: {len(tokens)} fields, ends in its laser config")
         config = _floats(tokens, 1, 8, name)
         _type, start, _fov, step, max_range, _accuracy, _mode = config
         n = _beams(tokens, 8, name)
         ranges = _numbers(tokens, 9, min(9 + n, len(tokens)), name)
         if len(ranges) < n:
-            raise _Bad("truncated", f"{name}: {len(tokens)} fields, ends in its {n} ranges")
+            raise Malformed("truncated", f"{name}: {len(tokens)} fields, ends in its {n} ranges")
         m = _count(tokens, 9 + n, name, "remission count")
         i = 10 + n + m
         remissions = _numbers(tokens, 10 + n, min(i, len(tokens)), name)
         if len(remissions) < m:
-            raise _Bad("truncated", f"{name}: {len(tokens)} fields, ends in its {m} remissions")
+            raise Malformed(
+                "truncated", f"{name}: {len(tokens)} fields, ends in its {m} remissions"
+            )
         if not (abs(start) <= 2 * math.pi and 0 < max_range <= _BIG):
-            raise _Bad("bad laser config", f"{name}: start_angle {start:g}, maximum_range "
+            raise Malformed("bad laser config", f"{name}: start_angle {start:g}, maximum_range "
                        f"{max_range:g}")  # fmt: skip
         if (step == 0 and n > 1) or abs(step) * (n - 1) > 2 * math.pi + 1e-6:
-            raise _Bad("bad laser config", f"{name}: {n} beams of {step:g} rad")
-        rec = _Record(name, 0, ranges, float(start), float(step), float(max_range),
+            raise Malformed("bad laser config", f"{name}: {n} beams of {step:g} rad")
+        rec = Record(name, 0, ranges, float(start), float(step), float(max_range),
                       remissions if m == n else None)  # fmt: skip
         needs = f"a {name} of {n} ranges and {m} remissions"
         if name in _ROBOT_TYPE:
             if len(tokens) < i + 11 + 2:
-                raise _Bad("truncated", f"{name}: {len(tokens)} fields, {needs} needs {i + 13}")
+                raise Malformed(
+                    "truncated", f"{name}: {len(tokens)} fields, {needs} needs {i + 13}"
+                )
             pose = _floats(tokens, i, i + 11, name)
+            rec.laser_pose = _pose(pose[0:3], name)
             x, y, yaw = _pose(pose[3:6], name)  # robot_x robot_y robot_theta
             rec.odom = (x, y, yaw, _speed(pose[6], name), _speed(pose[7], name))
             i += 11
         rec.stamp_ns = _tail(tokens, i, name, needs)
         return rec
-    raise AssertionError(name)
+    raise Malformed("not a laser or odometry record", f"{name[:20]!r}")
 
 
 def _beams(tokens: list[str], i: int, name: str) -> int:
     n = _count(tokens, i, name, "beam count")
     if not 1 <= n <= MAX_BEAMS:
-        raise _Bad("bad count", f"{name}: {n} beams (reads 1 to {MAX_BEAMS})")
+        raise Malformed("bad count", f"{name}: {n} beams (reads 1 to {MAX_BEAMS})")
     return n
 
 
@@ -418,7 +431,7 @@ class CarmenLog:
                 continue
             try:
                 rec = parse_line(tokens)
-            except _Bad as bad:
+            except Malformed as bad:
                 self.bad.add(bad.reason, bad.detail, line_no)
                 continue
             if name not in ids:
@@ -447,9 +460,9 @@ class CarmenLog:
         self._settle_clock()
 
     def _settle_clock(self) -> None:
-        """Each record's stamp (:attr:`_final`): its own, except a laser's scans stamped no
-        later than the scan before (left out, or all restamped when there are many) and
-        odometry lines stamped no later than the line before (left out)."""
+        """Each record's stamp (:attr:`_final`): its own, except a laser's scans stamped 0 or
+        no later than the scan before (left out, or all restamped when there are many) and
+        odometry lines stamped 0 or no later than the line before (left out)."""
         ids = np.frombuffer(self._name_id, dtype=np.int8) if self._name_id else np.zeros(0, int)
         stamps = np.frombuffer(self._stamps, dtype=np.int64) if self._stamps else np.zeros(0, int)
         final = stamps.copy()
@@ -457,14 +470,15 @@ class CarmenLog:
         for i, name in enumerate(self._names):
             rows = np.flatnonzero(ids == i)
             s = stamps[rows]
-            ahead = s > np.maximum.accumulate(np.concatenate(([-1], s[:-1])))
+            # a stamp of 0 is no time (some logs hold lines the logger never stamped)
+            ahead = (s > 0) & (s > np.maximum.accumulate(np.concatenate(([0], s[:-1]))))
             late = int((~ahead).sum())
             if _kind(name) == "scan" and late > CLOCK_BROKEN_FRACTION * len(rows):
                 t0 = int(s[0]) if s[0] > 0 else RESTAMP_PERIOD_NS
                 final[rows] = t0 + RESTAMP_PERIOD_NS * np.arange(len(rows), dtype=np.int64)
                 self.restamped[name] = (
-                    f"{late} of its {len(rows)} scans are stamped no later than the scan before "
-                    f"(stamps {_seconds(s[0])}..{_seconds(s.max())} s); they are restamped "
+                    f"{late} of its {len(rows)} scans are stamped 0 or no later than the scan "
+                    f"before (stamps {_seconds(s[0])}..{_seconds(s.max())} s); they are restamped "
                     f"{RESTAMP_PERIOD_NS / 1e9:g} s apart in file order"
                 )
             else:
@@ -475,7 +489,7 @@ class CarmenLog:
     # ------------------------------------------------------------------ second pass
 
     def late(self, source: str) -> int:
-        """Records of ``source`` left out for a stamp no later than the one before."""
+        """Records of ``source`` left out for a stamp of 0 or no later than the one before."""
         return self._late.get(source.removesuffix("/odom"), 0)
 
     def messages(self, sources: Collection[str]) -> Iterator[tuple[int, str, Message]]:
@@ -503,7 +517,7 @@ class CarmenLog:
                 continue
             try:
                 rec = parse_line(tokens)
-            except _Bad:  # the file changed since it was opened
+            except Malformed:  # the file changed since it was opened
                 continue
             stamp = int(final[ordinal])
             for n, (source, message) in enumerate(self._convert(rec, stamp, sources)):
@@ -517,7 +531,7 @@ class CarmenLog:
             stamp, _, source, message = heapq.heappop(heap)
             yield stamp, source, message
 
-    def _convert(self, rec: _Record, stamp: int, sources: Collection[str]):
+    def _convert(self, rec: Record, stamp: int, sources: Collection[str]):
         name = rec.name
         if rec.odom is not None and (name == "ODOM" or f"{name}/odom" in sources):
             x, y, yaw, v, w = rec.odom
@@ -526,8 +540,7 @@ class CarmenLog:
             yield (name if name == "ODOM" else f"{name}/odom"), odom
         if rec.ranges is not None and name in sources:
             limit = rec.max_range_m if rec.max_range_m is not None else self.no_return_m[name]
-            ranges = rec.ranges.astype(np.float32)
-            ranges[rec.ranges >= limit] = np.inf  # no return
+            ranges = np.where(rec.ranges >= limit, np.inf, rec.ranges).astype(np.float32)
             intensities = None
             if rec.remissions is not None:
                 intensities = rec.remissions.astype(np.float32)
