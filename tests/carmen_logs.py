@@ -141,6 +141,28 @@ def reading_speed(paths: list[Path]) -> str:
     return "\n".join(rows)
 
 
+def odometry_frames(paths: list[Path]) -> str:
+    """How far apart the ODOM lines and a FLASER's odometry fields put the robot at the scans'
+    stamps (logs whose scans keep their own stamps)."""
+    from followbot.carmen import CarmenLog
+
+    rows = ["| log | median (m) | max (m) |", "|---|---|---|"]
+    for path in paths:
+        log = CarmenLog(path)
+        if log.restamped:
+            continue
+        odom, laser = [], []
+        for t, src, m in log.messages(["ODOM", "FLASER/odom"]):
+            (odom if src == "ODOM" else laser).append((t, m.x_m, m.y_m))
+        o, f = np.array(odom), np.array(laser)
+        x = np.interp(f[:, 0], o[:, 0], o[:, 1])
+        y = np.interp(f[:, 0], o[:, 0], o[:, 2])
+        d = np.hypot(x - f[:, 1], y - f[:, 2])
+        name = path.name.split("-corrected")[0]
+        rows.append(f"| {name} | {np.median(d):.2f} | {d.max():.1f} |")
+    return "\n".join(rows)
+
+
 def fits(paths: list[Path]) -> str:
     rows = ["| log | beams | best first-beam angle (deg) | best step / reader's step |",
             "|---|---|---|---|"]  # fmt: skip
@@ -156,6 +178,8 @@ if __name__ == "__main__":
     default = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen"
     logs = [Path(p) for p in sys.argv[1:]] or sorted(default.glob("*.log.gz"))
     print(reading_speed(logs))
+    print()
+    print(odometry_frames(logs))
     print()
     print(table(logs))
     print()
