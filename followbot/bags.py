@@ -447,7 +447,10 @@ def _open_carmen(path: Path, remaps: dict[str, str]) -> Recording:
         mapping[src] = dst
     taken = set(mapping.values())
     if "sensors/scan" not in taken:
+        lasers = [s for s, (ty, _) in log.contents.items() if ty == "LaserScan"]
         scan = next((s for s in DEFAULT_SCAN_SOURCES if s in log.contents), None)
+        if scan is None and len(lasers) == 1:  # a log of one other laser (RLASER, say)
+            scan = lasers[0]
         if scan is not None:
             mapping[scan] = "sensors/scan"
     clocks = {clock(s) for s in mapping}

@@ -68,7 +68,8 @@ __all__ = [
 CARMEN_SUFFIXES = (".log", ".log.gz", ".clf", ".clf.gz")
 
 #: Which laser feeds sensors/scan by default, first present wins: the front laser, as
-#: ROBOTLASER1 (newer logs), FLASER (older ones) or RAWLASER1 (without the robot's pose).
+#: ROBOTLASER1 (newer logs), FLASER (older ones) or RAWLASER1 (without the robot's pose). A log
+#: with none of them and a single other laser uses that one.
 DEFAULT_SCAN_SOURCES = ("ROBOTLASER1", "FLASER", "RAWLASER1")
 
 #: The maximum CARMEN gives FLASER-type records (its reader's ``maximum_range``): readings at

@@ -223,8 +223,9 @@ which topics:
 CARMEN logs:
   A CARMEN log has no topics: its sources are its record names (FLASER, RLASER, ROBOTLASER1,
   RAWLASER1..4, ODOM) and NAME/odom for the odometry fields of a laser record (FLASER/odom).
-  By default the front laser (ROBOTLASER1, else FLASER, else RAWLASER1) feeds sensors/scan and
-  its odometry fields sensors/odom; --remap ODOM=sensors/odom takes the ODOM lines instead.
+  By default the front laser (ROBOTLASER1, else FLASER, else RAWLASER1, else the only laser)
+  feeds sensors/scan and its odometry fields sensors/odom; --remap ODOM=sensors/odom takes the
+  ODOM lines instead. docs/recording.md, "CARMEN logs", says more.
   Lines that cannot be read are skipped and counted (a warning says how many, why, where).
 
 damaged files:
