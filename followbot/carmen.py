@@ -44,7 +44,7 @@ from array import array
 from collections import Counter
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
-from decimal import Decimal, InvalidOperation
+from decimal import Decimal, DecimalException
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +110,8 @@ _RAW_TYPE = {f"RAWLASER{i}": f"laser{i}" for i in range(1, 5)}
 _ROBOT_TYPE = {"ROBOTLASER1": "laser1", "ROBOTLASER2": "laser2"}
 _WITH_POSE = {"FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2"}
 _BIG = 1e12  # |x| a followbot Finite field accepts
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_MAX_STAMP_S = Decimal(2**63 - 1).scaleb(-9)  # a followbot stamp is an int64 of ns
 _SHOWN_LINES = 5
 
 
@@ -188,7 +190,7 @@ def _count(tokens: list[str], i: int, name: str, what: str) -> int:
     if i >= len(tokens):
         raise Malformed("truncated", f"{name}: ends before its {what}")
     text = tokens[i]
-    if not text.isdigit():
+    if not (text.isascii() and text.isdigit()):
         raise Malformed("bad count", f"{name}: {what} {text[:20]!r}")
     return int(text)
 
@@ -196,12 +198,15 @@ def _count(tokens: list[str], i: int, name: str, what: str) -> int:
 def _stamp_ns(text: str, name: str) -> int:
     """``timestamp`` (seconds, decimal or exponent notation) as integer ns, exactly."""
     try:
-        ns = int(Decimal(text).scaleb(9).to_integral_value())
-    except (InvalidOperation, ValueError, OverflowError):
-        raise Malformed("bad timestamp", f"{name}: {text[:20]!r}") from None
-    if ns < 0:
+        seconds = Decimal(text)
+    except DecimalException:
+        seconds = Decimal("NaN")
+    if not seconds.is_finite():
+        raise Malformed("bad timestamp", f"{name}: {text[:20]!r}")
+    if seconds < 0:
         raise Malformed("bad timestamp", f"{name}: {text[:20]!r} (negative)")
-    if ns >= 2**63:
+    ns = int(seconds.scaleb(9).to_integral_value()) if seconds <= _MAX_STAMP_S else 2**63
+    if ns >= 2**63:  # compared before converting: 1e999999 would take long
         raise Malformed("bad timestamp", f"{name}: {text[:20]!r} (too large)")
     return ns
 
@@ -270,17 +275,18 @@ def parse_line(tokens: list[str]) -> Record:
         m = _count(tokens, 9 + n, name, "remission count")
         i = 10 + n + m
         remissions = _numbers(tokens, 10 + n, min(i, len(tokens)), name)
+        if np.abs(remissions).max(initial=0.0) > _FLOAT32_MAX:  # sent as float32
+            raise Malformed("out of range", f"{name}: a remission beyond float32")
         if len(remissions) < m:
             raise Malformed(
                 "truncated", f"{name}: {len(tokens)} fields, ends in its {m} remissions"
             )
         if not (abs(start) <= 2 * math.pi and 0 < max_range <= _BIG):
-            raise Malformed("bad laser config", f"{name}: start_angle {start:g}, maximum_range "
-                       f"{max_range:g}")  # fmt: skip
-        if (step == 0 and n > 1) or abs(step) * (n - 1) > 2 * math.pi + 1e-6:
+            why = f"{name}: start_angle {start:g}, maximum_range {max_range:g}"
+            raise Malformed("bad laser config", why)
+        if (step == 0 and n > 1) or abs(step) > math.pi or abs(step) * (n - 1) > 2 * math.pi:
             raise Malformed("bad laser config", f"{name}: {n} beams of {step:g} rad")
-        rec = Record(name, 0, ranges, float(start), float(step), float(max_range),
-                      remissions if m == n else None)  # fmt: skip
+        rec = Record(name, 0, ranges, start, step, max_range, remissions if m == n else None)
         needs = f"a {name} of {n} ranges and {m} remissions"
         if name in _ROBOT_TYPE:
             if len(tokens) < i + 11 + 2:
@@ -541,7 +547,9 @@ class CarmenLog:
             yield (name if name == "ODOM" else f"{name}/odom"), odom
         if rec.ranges is not None and name in sources:
             limit = rec.max_range_m if rec.max_range_m is not None else self.no_return_m[name]
-            ranges = np.where(rec.ranges >= limit, np.inf, rec.ranges).astype(np.float32)
+            # at or beyond the ceiling, or negative (which CARMEN does not define): no return
+            ranges = rec.ranges
+            ranges = np.where((ranges >= limit) | (ranges < 0), np.inf, ranges).astype(np.float32)
             intensities = None
             if rec.remissions is not None:
                 intensities = rec.remissions.astype(np.float32)

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 from carmen_logs import candidates, flaser_scans, residual_m
 from conftest import SHARED_DATA
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from followbot.bags import RecordingError, open_recording
 from followbot.carmen import CarmenLog, flaser_geometry
@@ -256,6 +258,74 @@ def test_malformed_lines_are_skipped_counted_and_named_by_line(tmp_path):
     info = followbot("replay", str(path), "--info")
     assert info.returncode == 0, info.stderr
     assert f"warning: {path}: skipped 7 of 12 lines it could not read" in info.stderr
+
+
+_GOOD_LINES = [
+    odom(1.0, 2.0, 0.5, 0.3, 0.1, T0),
+    flaser([1.5, 2.5, 81.91, 3.0], T0),
+    flaser([1.5, 2.5, 3.0], T0, name="RLASER"),
+    f"LASER3 3 1 2 3 {T0} host {T0}",
+    robotlaser([1.0, 2.0, 3.0], [5.0, 6.0, 7.0], T0),
+    rawlaser([1.0, 2.0], T0),
+]
+_NASTY = st.one_of(
+    st.sampled_from(["nan", "inf", "-inf", "1e999", "-1", "0", "1e308", "3.5e38", "abc", "\xb2",
+                     "99999999999", "-0", "1_0", "0x10", "1e-400", "1e999999999", "7", "4000"]),
+    st.text(alphabet=st.characters(max_codepoint=255, exclude_characters="\n\r"), max_size=8),
+)  # fmt: skip
+
+
+@st.composite
+def _damaged_line(draw):
+    tokens = draw(st.sampled_from(_GOOD_LINES)).split()
+    for _ in range(draw(st.integers(1, 3))):
+        i = draw(st.integers(0, len(tokens) - 1))
+        match draw(st.sampled_from(["replace", "delete", "insert"])):
+            case "replace":
+                tokens[i] = draw(_NASTY)
+            case "delete" if len(tokens) > 1:
+                del tokens[i]
+            case "insert":
+                tokens.insert(i, draw(_NASTY))
+    line = " ".join(tokens)
+    return line[: draw(st.integers(0, len(line)))] if draw(st.booleans()) else line
+
+
+@settings(max_examples=300, deadline=None)
+@given(lines=st.lists(_damaged_line(), min_size=1, max_size=6))
+def test_no_damaged_line_escapes_the_reader(lines):
+    """Whatever a line holds, it is read or counted as malformed: never an exception, never an
+    invalid message."""
+    import tempfile
+    from pathlib import Path
+
+    from followbot.schemas import encode
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write(Path(tmp) / "fuzz.log", [*_GOOD_LINES, *lines])
+        log = CarmenLog(path)
+        assert sum(n for _, n in log.contents.values()) + log.bad.total >= len(_GOOD_LINES)
+        for _, _, message in log.messages(list(log.contents)):
+            assert decode(type(message), encode(message)) is not None  # valid on the wire
+
+
+def test_files_with_nothing_readable_are_clear_errors(tmp_path):
+    empty = tmp_path / "empty.log"
+    empty.write_bytes(b"")
+    with pytest.raises(RecordingError, match=r"no CARMEN laser or odometry records \(no records"):
+        open_recording(empty)
+    noise = tmp_path / "noise.log"
+    noise.write_bytes(np.random.default_rng(3).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    with pytest.raises(
+        RecordingError, match=r"no CARMEN laser or odometry records.*could not read"
+    ):
+        open_recording(noise)
+    bad_gzip = tmp_path / "bad.log.gz"
+    bad_gzip.write_bytes(b"\x1f\x8b\x08\x00" + bytes(range(256)) * 4)
+    with pytest.raises(RecordingError, match="unreadable gzip data after line 0"):
+        open_recording(bad_gzip)
+    out = followbot("replay", str(bad_gzip), "--info")
+    assert out.returncode == 2 and "unreadable gzip data" in out.stderr
 
 
 def test_many_bad_lines_show_the_first_five_line_numbers(tmp_path):
