@@ -214,15 +214,14 @@ class Recording:
     # ------------------------------------------------------------------ CARMEN logs
 
     def _carmen_messages(self) -> Iterator[tuple[int, str, Message]]:
-        log = self.carmen
-        for src in self.mapping:
-            if late := log.late(src):
-                record = src.removesuffix("/odom")
-                what = "line" if record == "ODOM" else "scan"
-                self.skipped[f"{src}: stamped 0 or no later than the {record} {what} before"] += (
-                    late
-                )
-        for stamp, src, message in log.messages(list(self.mapping)):
+        def late(record: str) -> None:
+            what = "line" if record == "ODOM" else "scan"
+            for src in self.mapping:
+                if src.removesuffix("/odom") == record:
+                    why = f"{src}: stamped 0 or no later than an earlier {record} {what}"
+                    self.skipped[why] += 1
+
+        for stamp, src, message in self.carmen.messages(list(self.mapping), late):
             yield stamp, self.mapping[src], message
 
     # ------------------------------------------------------------------ ROS bags

@@ -42,7 +42,7 @@ import re
 import zlib
 from array import array
 from collections import Counter
-from collections.abc import Collection, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from decimal import Decimal, DecimalException
 from pathlib import Path
@@ -84,7 +84,7 @@ CEILING_MIN_M = 20.0
 CEILING_BAND_M = 0.1
 CEILING_PER_SCANS = 10
 
-#: A laser whose scans are stamped no later than the scan before more often than this (a
+#: A laser whose scans are stamped 0 or no later than an earlier scan more often than this (a
 #: fraction of its scans) has an unusable clock: its scans are restamped RESTAMP_PERIOD_NS
 #: apart, in file order. Below it, only those scans are left out.
 CLOCK_BROKEN_FRACTION = 0.1
@@ -468,12 +468,11 @@ class CarmenLog:
 
     def _settle_clock(self) -> None:
         """Each record's stamp (:attr:`_final`): its own, except a laser's scans stamped 0 or
-        no later than the scan before (left out, or all restamped when there are many) and
-        odometry lines stamped 0 or no later than the line before (left out)."""
+        no later than an earlier scan (left out, or all restamped when there are many) and
+        odometry lines stamped 0 or no later than an earlier line (left out)."""
         ids = np.frombuffer(self._name_id, dtype=np.int8) if self._name_id else np.zeros(0, int)
         stamps = np.frombuffer(self._stamps, dtype=np.int64) if self._stamps else np.zeros(0, int)
         final = stamps.copy()
-        self._late: Counter = Counter()
         for i, name in enumerate(self._names):
             rows = np.flatnonzero(ids == i)
             s = stamps[rows]
@@ -484,24 +483,23 @@ class CarmenLog:
                 t0 = int(s[0]) if s[0] > 0 else RESTAMP_PERIOD_NS
                 final[rows] = t0 + RESTAMP_PERIOD_NS * np.arange(len(rows), dtype=np.int64)
                 self.restamped[name] = (
-                    f"{late} of its {len(rows)} scans are stamped 0 or no later than the scan "
-                    f"before (stamps {_seconds(s[0])}..{_seconds(s.max())} s); they are restamped "
+                    f"{late} of its {len(rows)} scans are stamped 0 or no later than an earlier "
+                    f"scan (stamps {_seconds(s[0])}..{_seconds(s.max())} s); they are restamped "
                     f"{RESTAMP_PERIOD_NS / 1e9:g} s apart in file order"
                 )
             else:
                 final[rows[~ahead]] = -1
-                self._late[name] = late
         self._final = final
 
     # ------------------------------------------------------------------ second pass
 
-    def late(self, source: str) -> int:
-        """Records of ``source`` left out for a stamp of 0 or no later than the one before."""
-        return self._late.get(source.removesuffix("/odom"), 0)
-
-    def messages(self, sources: Collection[str]) -> Iterator[tuple[int, str, Message]]:
+    def messages(
+        self, sources: Collection[str], on_late: Callable[[str], None] | None = None
+    ) -> Iterator[tuple[int, str, Message]]:
         """``(stamp_ns, source, message)`` of ``sources``, in stamp order (the odometry of a
-        laser record just before its scan)."""
+        laser record just before its scan). ``on_late(record name)`` is called for each record
+        of ``sources`` left out for its stamp (0, or no later than an earlier one), as it is
+        read."""
         records = {s.removesuffix("/odom") for s in sources}
         wanted = np.array([name in records for name in self._names] or [False])
         ids = np.frombuffer(self._name_id, dtype=np.int8) if self._name_id else np.zeros(0, int)
@@ -520,7 +518,12 @@ class CarmenLog:
                 ordinal += 1
             if ordinal >= total:  # past the records read on opening (the file grew)
                 break
-            if line_nos[ordinal] != line_no or not keep[ordinal]:
+            if line_nos[ordinal] != line_no:
+                continue
+            if not keep[ordinal]:
+                if on_late is not None and wanted[ids[ordinal]]:
+                    on_late(self._names[ids[ordinal]])
+                ordinal += 1
                 continue
             try:
                 rec = parse_line(tokens)

@@ -397,7 +397,7 @@ def test_scans_whose_stamps_do_not_increase_are_restamped_and_odom_lines_left_ou
     assert rec.mapping == {"FLASER": "sensors/scan", "FLASER/odom": "sensors/odom"}
     assert "another clock" in rec.left_out["ODOM"]
     assert rec.warnings == [
-        "FLASER: 10 of its 10 scans are stamped 0 or no later than the scan before (stamps "
+        "FLASER: 10 of its 10 scans are stamped 0 or no later than an earlier scan (stamps "
         "0..0 s); "
         "they are restamped 1 s apart in file order"
     ]
@@ -423,8 +423,8 @@ def test_a_few_scans_out_of_order_are_left_out_and_counted(tmp_path):
     scans = [m.stamp_ns for _, t, m in rec.messages() if t == "sensors/scan"]
     assert len(scans) == 19 and scans == sorted(set(scans))
     assert rec.skipped == {
-        "FLASER: stamped 0 or no later than the FLASER scan before": 1,
-        "ODOM: stamped 0 or no later than the ODOM line before": 1,
+        "FLASER: stamped 0 or no later than an earlier FLASER scan": 1,
+        "ODOM: stamped 0 or no later than an earlier ODOM line": 1,
     }
 
 
