@@ -1,4 +1,4 @@
-"""Reading recordings: followbot MCAP files, ROS 1 bags and ROS 2 bags, as one message stream.
+"""Reading recordings: followbot MCAP files, ROS 1 and ROS 2 bags, CARMEN logs, as one stream.
 
 :func:`open_recording` returns a :class:`Recording` whose :meth:`~Recording.messages` yields
 ``(log_time_ns, topic, message)`` in log-time order (an MCAP without its index: in the order
@@ -19,9 +19,15 @@ By default a ROS topic is mapped by its message type when that type has exactly 
 the file (``/scan`` → ``sensors/scan``); otherwise ``--remap SRC=DST`` says which. Messages
 that fail conversion or validation are skipped and counted, never fatal.
 
+CARMEN logs (followbot.carmen) have no topics: their sources are record names (``FLASER``,
+``ODOM``, ``ROBOTLASER1``, ``FLASER/odom`` for a laser record's odometry fields); by default the
+front laser feeds ``sensors/scan`` and its odometry fields ``sensors/odom``.
+
 A damaged MCAP (cut short, a recorder killed, a bad chunk) is read up to the damage, and so
-is a ROS 1 bag whose index is missing or cut (:class:`Ros1Stream`): :attr:`Recording.damage`
-then says how much was read and why it stopped.
+is a ROS 1 bag whose index is missing or cut (:class:`Ros1Stream`) and a gzipped CARMEN log
+cut short: :attr:`Recording.damage` then says how much was read and why it stopped.
+:attr:`Recording.warnings` says what else the user must know (a CARMEN log's unreadable
+lines, its restamped scans).
 :meth:`Recording.select` narrows what is replayed (by default to the sensor topics).
 """
 
@@ -37,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from followbot.carmen import CarmenLog
 from followbot.mcapio import Damage
 from followbot.schemas import (
     TOPICS,
@@ -92,7 +99,7 @@ class Recording:
     """A readable recording and what it holds."""
 
     path: Path
-    kind: str  # "mcap" | "ros"
+    kind: str  # "mcap" | "ros" | "carmen"
     #: source topic -> followbot topic, for the topics that will be replayed
     mapping: dict[str, str]
     #: source topic -> (type name, message count) for everything in the file (of a damaged
@@ -110,6 +117,10 @@ class Recording:
     is read front to back."""
     index_problem: str = ""
     """Why the index of a ROS 1 bag read front to back could not be used."""
+    warnings: list[str] = field(default_factory=list)
+    """What the user must know about the file besides damage, one line each."""
+    carmen: CarmenLog | None = field(default=None, repr=False)
+    """The reader of a CARMEN log (read once on opening)."""
 
     def select(self, include: list[str] | None = None, exclude: list[str] | None = None) -> None:
         """Replay only the topics matching a pattern of ``include`` (default
@@ -153,6 +164,8 @@ class Recording:
     def messages(self) -> Iterator[tuple[int, str, Message]]:
         if self.kind == "mcap":
             yield from self._mcap_messages()
+        elif self.kind == "carmen":
+            yield from self._carmen_messages()
         else:
             yield from self._ros_messages()
 
@@ -197,6 +210,19 @@ class Recording:
         except RejectedMessage:
             self.skipped["invalid payload"] += 1
             return None
+
+    # ------------------------------------------------------------------ CARMEN logs
+
+    def _carmen_messages(self) -> Iterator[tuple[int, str, Message]]:
+        def late(record: str) -> None:
+            what = "line" if record == "ODOM" else "scan"
+            for src in self.mapping:
+                if src.removesuffix("/odom") == record:
+                    why = f"{src}: stamped 0 or no later than an earlier {record} {what}"
+                    self.skipped[why] += 1
+
+        for stamp, src, message in self.carmen.messages(list(self.mapping), late):
+            yield stamp, self.mapping[src], message
 
     # ------------------------------------------------------------------ ROS bags
 
@@ -245,7 +271,10 @@ class Recording:
 
 
 def open_recording(path: str | Path, remaps: dict[str, str] | None = None) -> Recording:
-    """Open ``path`` (followbot .mcap, ROS 1 .bag, or a ROS 2 bag folder) and plan the mapping."""
+    """Open ``path`` (followbot .mcap, ROS 1 .bag, a ROS 2 bag folder, or a CARMEN log) and
+    plan the mapping."""
+    from followbot.carmen import CARMEN_SUFFIXES, looks_like_carmen
+
     path = Path(path)
     remaps = dict(remaps or {})
     if not path.exists():
@@ -254,9 +283,11 @@ def open_recording(path: str | Path, remaps: dict[str, str] | None = None) -> Re
         return _open_mcap(path, remaps)
     if (path.is_file() and path.name.endswith((".bag", ".bag.active"))) or path.is_dir():
         return _open_ros(path, remaps)
+    if path.name.endswith(CARMEN_SUFFIXES) or looks_like_carmen(path):
+        return _open_carmen(path, remaps)
     raise RecordingError(
         f"{path}: not a recording followbot reads (a followbot .mcap, a ROS 1 .bag, "
-        "or a ROS 2 bag folder)"
+        "a ROS 2 bag folder, or a CARMEN .log/.clf, gzipped or not)"
     )
 
 
@@ -380,6 +411,93 @@ def _open_ros(path: Path, remaps: dict[str, str]) -> Recording:
     }
     return Recording(path, "ros", mapping, contents, left_out=left_out, damage=damage,
                      indexed=damage is None, index_problem=index_problem)  # fmt: skip
+
+
+def _open_carmen(path: Path, remaps: dict[str, str]) -> Recording:
+    from followbot.carmen import DEFAULT_SCAN_SOURCES, NOT_CONVERTED, CarmenLog
+
+    try:
+        log = CarmenLog(path)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read the file: {exc}") from None
+    if not log.contents:
+        found = [f"{n} {name}" for name, n in (log.not_converted + log.unknown).most_common(8)]
+        what = f"it has {', '.join(found)}" if found else "no records at all"
+        bad = f"; {log.bad.describe()}" if log.bad.total else ""
+        why = f"; {log.damage.describe()}" if log.damage else ""
+        raise RecordingError(f"{path}: no CARMEN laser or odometry records ({what}){bad}{why}")
+
+    def clock(src: str) -> str:
+        """Sources replayed together must share a clock: the file's, or a restamped laser's."""
+        record = src.removesuffix("/odom")
+        return record if record in log.restamped else "the log's clock"
+
+    missing = sorted(set(remaps) - set(log.contents))
+    if missing:
+        raise RecordingError(
+            f"{path}: no source {missing} in the CARMEN log; it has: "
+            + ", ".join(f"{s} ({ty})" for s, (ty, _) in sorted(log.contents.items()))
+        )
+    mapping: dict[str, str] = {}
+    for src, dst in remaps.items():
+        want, have = topic_type(dst).__name__, log.source_type(src)
+        if want != have:
+            raise RecordingError(f"{path}: {src} gives {have}; {dst} takes {want}")
+        mapping[src] = dst
+    taken = set(mapping.values())
+    if "sensors/scan" not in taken:
+        lasers = [s for s, (ty, _) in log.contents.items() if ty == "LaserScan"]
+        scan = next((s for s in DEFAULT_SCAN_SOURCES if s in log.contents), None)
+        if scan is None and len(lasers) == 1:  # a log of one other laser (RLASER, say)
+            scan = lasers[0]
+        if scan is not None:
+            mapping[scan] = "sensors/scan"
+    clocks = {clock(s) for s in mapping}
+    if len(clocks) > 1:
+        raise RecordingError(
+            f"{path}: {', '.join(sorted(mapping))} cannot be replayed together: "
+            + "; ".join(f"{name}: {why}" for name, why in log.restamped.items())
+            + ", so the other records' stamps are on another clock"
+        )
+    if "sensors/odom" not in taken:
+        scans = [s for s, d in mapping.items() if d == "sensors/scan"]
+        odom = [f"{s}/odom" for s in scans if f"{s}/odom" in log.contents] + ["ODOM"]
+        odom = [s for s in odom if s in log.contents and (not clocks or clock(s) in clocks)]
+        if odom:
+            mapping[odom[0]] = "sensors/odom"
+    if not mapping:
+        raise RecordingError(
+            f"{path}: no default source for sensors/scan or sensors/odom; say which with "
+            f"--remap SRC=DST; it has: "
+            + ", ".join(f"{s} ({ty})" for s, (ty, _) in sorted(log.contents.items()))
+        )
+    contents = dict(log.contents)
+    left_out = {}
+    for src, (type_name, _) in log.contents.items():
+        if src in mapping:
+            continue
+        dst = "sensors/scan" if type_name == "LaserScan" else "sensors/odom"
+        if clock(src) not in {clock(s) for s in mapping}:
+            left_out[src] = (
+                "its stamps are on another clock than the replayed sources' (restamped "
+                "scans: see the warning)"
+            )
+        elif dst in mapping.values():
+            feeds = next(s for s, d in mapping.items() if d == dst)
+            left_out[src] = f"{feeds} feeds {dst} (--remap {src}={dst} chooses this one)"
+        else:
+            left_out[src] = f"not replayed (--remap {src}={dst} replays it)"
+    for name, n in log.not_converted.items():
+        contents[name] = ("-", n)
+        left_out[name] = f"{NOT_CONVERTED[name]}: no followbot message carries them"
+    for name, n in log.unknown.items():
+        contents[name] = ("-", n)
+        left_out[name] = "not a CARMEN record followbot knows; ignored"
+    warnings = [f"{name}: {why}" for name, why in log.restamped.items()]
+    if log.bad.total:
+        warnings.append(log.bad.describe())
+    return Recording(path, "carmen", mapping, contents, left_out=left_out, damage=log.damage,
+                     warnings=warnings, carmen=log)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- ROS 1, no index

@@ -8,10 +8,10 @@ robot name, the followbot version and the schema version. Chunks are flushed to 
 least every half second, so a recorder killed outright loses at most that. See
 docs/recording.md.
 
-Replay republishes a followbot MCAP, a ROS 1 bag or a ROS 2 bag folder with the original
-timing (``--rate`` multiplier, ``--rate 0`` as fast as possible), remapping topics and
-converting ROS messages (followbot.bags). It sends the sensor topics only unless told
-otherwise, and reads a damaged file up to the damage.
+Replay republishes a followbot MCAP, a ROS 1 bag, a ROS 2 bag folder or a CARMEN log with the
+original timing (``--rate`` multiplier, ``--rate 0`` as fast as possible), remapping topics and
+converting ROS and CARMEN messages (followbot.bags, followbot.carmen). It sends the sensor
+topics only unless told otherwise, and reads a damaged file up to the damage.
 """
 
 from __future__ import annotations
@@ -32,11 +32,16 @@ __all__ = ["record_main", "replay_main"]
 FLUSH_PERIOD_S = 0.5
 
 
-def _node_settings(args: argparse.Namespace):
+def _node_settings(args: argparse.Namespace, *, paced_by_source: bool = False):
+    """``paced_by_source``: the node's inputs answer a source that sets its own pace (a
+    lock-step replay), so a gap between their stamps is no stamp from the future."""
     from followbot.services.runtime.session import overrides_from_args
     from followbot.services.runtime.settings import NodeSettings, load_settings
 
-    return load_settings(NodeSettings, None, [*overrides_from_args(args), "log_level=warning"])
+    overrides = [*overrides_from_args(args), "log_level=warning"]
+    if paced_by_source:
+        overrides.append("clock.max_ahead_s=null")
+    return load_settings(NodeSettings, None, overrides)
 
 
 # ----------------------------------------------------------------------------- record
@@ -129,8 +134,9 @@ def replay_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="followbot replay",
         description=(
-            "Republish a recording: a followbot .mcap, a ROS 1 .bag or a ROS 2 bag folder. "
-            "ROS LaserScan, Odometry, Image and CompressedImage are converted."
+            "Republish a recording: a followbot .mcap, a ROS 1 .bag, a ROS 2 bag folder or a "
+            "CARMEN log (.log, .clf, gzipped or not). ROS LaserScan, Odometry, Image and "
+            "CompressedImage are converted, and so are CARMEN laser and odometry records."
         ),
         epilog=REPLAY_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -194,6 +200,8 @@ def replay_main(argv: list[str] | None = None) -> int:
     if rec.damage is not None:
         print(f"warning: {rec.path} is damaged: {rec.damage.describe()}; replaying what was "
               "read", file=sys.stderr)  # fmt: skip
+    for warning in rec.warnings:
+        print(f"warning: {rec.path}: {warning}", file=sys.stderr)
     if args.info:
         return 0
     try:
@@ -212,6 +220,14 @@ which topics:
   --all-topics replays everything (into a system where nothing else publishes), --exclude
   leaves topics out. The list printed at the start says what is replayed and what is skipped.
 
+CARMEN logs:
+  A CARMEN log has no topics: its sources are its record names (FLASER, RLASER, ROBOTLASER1,
+  RAWLASER1..4, ODOM) and NAME/odom for the odometry fields of a laser record (FLASER/odom).
+  By default the front laser (ROBOTLASER1, else FLASER, else RAWLASER1, else the only laser)
+  feeds sensors/scan and its odometry fields sensors/odom; --remap ODOM=sensors/odom takes the
+  ODOM lines instead. docs/recording.md, "CARMEN logs", says more.
+  Lines that cannot be read are skipped and counted (a warning says how many, why, where).
+
 damaged files:
   A recording cut short (a recorder killed, a full disk, an interrupted copy) or damaged
   part-way is replayed up to the damage, with a warning saying how much was read and why it
@@ -228,7 +244,7 @@ def _replay(rec, args: argparse.Namespace) -> int:
     from followbot.bags import RecordingError
     from followbot.services.runtime.node import zenoh_node
 
-    settings = _node_settings(args)
+    settings = _node_settings(args, paced_by_source=args.lockstep)
     total = sum(n for src, (_, n) in rec.contents.items() if src in rec.mapping)
     sent = 0
     with zenoh_node("replay", settings) as node:
@@ -285,6 +301,8 @@ def _replay(rec, args: argparse.Namespace) -> int:
     print(f"replayed {sent} messages in {elapsed:.1f} s")
     for reason, n in rec.skipped.most_common():
         print(f"  skipped {n}: {reason}")
+    for warning in rec.warnings:
+        print(f"warning: {rec.path}: {warning}", file=sys.stderr)
     if rec.damage is not None and error is None:
         print(f"warning: {rec.path} is damaged: {rec.damage.describe()}", file=sys.stderr)
     if barrier is not None and any(barrier.timeouts.values()):

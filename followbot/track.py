@@ -3,6 +3,7 @@
     followbot track demo.bag --scan-topic /scan --output out/track
     followbot track run.mcap --scan-topic sensors/scan --odom-topic sensors/odom \\
                     --image-topic sensors/image --output out/track
+    followbot track aces-corrected.log.gz --output out/aces     # CARMEN: FLASER, FLASER/odom
 
 Runs the real pipeline (laser_legs and tracker, plus vision_verify when images are given) as
 processes over Zenoh, in lock-step with the recording: each scan is published only once the
@@ -36,9 +37,21 @@ def main(argv: list[str] | None = None) -> int:
         prog="followbot track", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
-    p.add_argument("file", help="a followbot .mcap, a ROS 1 .bag or a ROS 2 bag folder")
-    p.add_argument("--scan-topic", required=True, help="the laser scans (LaserScan)")
-    p.add_argument("--odom-topic", help="odometry (ego-motion compensation)")
+    p.add_argument(
+        "file",
+        help="a followbot .mcap, a ROS 1 .bag, a ROS 2 bag folder or a CARMEN .log/.clf "
+        "(gzipped or not)",
+    )
+    p.add_argument(
+        "--scan-topic",
+        help="the laser scans (LaserScan); default: the recording's own (a followbot MCAP's "
+        "sensors/scan, a bag's only LaserScan topic, a CARMEN log's front laser) and with it "
+        "its odometry, if it has one",
+    )
+    p.add_argument(
+        "--odom-topic",
+        help="odometry (ego-motion compensation); with --scan-topic, none unless given",
+    )
     p.add_argument("--image-topic", help="camera images (vision verification)")
     p.add_argument("--output", required=True, metavar="DIR", help="output folder")
     p.add_argument("--preset", default="thesis", choices=sorted(PRESETS), help="(thesis)")
@@ -54,14 +67,25 @@ def main(argv: list[str] | None = None) -> int:
         help="seconds to wait for the stages' answers to one scan (5)",
     )  # fmt: skip
     args = p.parse_args(argv)
-    remaps = {args.scan_topic: "sensors/scan"}
+    remaps = {args.scan_topic: "sensors/scan"} if args.scan_topic else {}
     if args.odom_topic:
         remaps[args.odom_topic] = "sensors/odom"
     if args.image_topic:
         remaps[args.image_topic] = "sensors/image"
+    rec = None
+    if args.scan_topic is None:
+        # The recording says which of its topics are the scans (and odometry): open it first.
+        try:
+            rec = _open_with_defaults(args.file, remaps)
+        except (RecordingError, ValueError) as exc:
+            print(f"followbot track: {exc}", file=sys.stderr)
+            print("followbot track: say which topic holds the scans with --scan-topic",
+                  file=sys.stderr)  # fmt: skip
+            return 2
+    odometry = bool(args.odom_topic) if rec is None else "sensors/odom" in rec.mapping.values()
     stages = ["laser_legs", "tracker"] + (["vision_verify"] if args.image_topic else [])
     settings = _stage_settings(
-        args.preset, stages, bool(args.image_topic), args.set, odometry=bool(args.odom_topic)
+        args.preset, stages, bool(args.image_topic), args.set, odometry=odometry
     )
     if isinstance(settings, str):
         print(f"followbot track: {settings}", file=sys.stderr)
@@ -75,20 +99,44 @@ def main(argv: list[str] | None = None) -> int:
         for stage, why in bad.items():
             print(f"followbot track: {stage}: {why}", file=sys.stderr)
         return 2
-    try:
-        rec = open_recording(args.file, remaps)
-    except (RecordingError, ValueError) as exc:
-        print(f"followbot track: {exc}", file=sys.stderr)
-        return 2
-    rec.mapping = {src: dst for src, dst in rec.mapping.items() if src in remaps}
+    if rec is None:
+        try:
+            rec = open_recording(args.file, remaps)
+        except (RecordingError, ValueError) as exc:
+            print(f"followbot track: {exc}", file=sys.stderr)
+            return 2
+        rec.mapping = {src: dst for src, dst in rec.mapping.items() if src in remaps}
+    print(f"tracking {rec.path}: " + ", ".join(f"{src} -> {dst}" for src, dst in
+          sorted(rec.mapping.items(), key=lambda item: item[1])), file=sys.stderr)  # fmt: skip
     if rec.damage is not None:
         print(f"warning: {rec.path} is damaged: {rec.damage.describe()}; tracking what was "
               "read", file=sys.stderr)  # fmt: skip
+    for warning in rec.warnings:
+        print(f"warning: {rec.path}: {warning}", file=sys.stderr)
     try:
         return _track(rec, stages, settings, Path(args.output), args.max_scans, args.timeout)
     except RecordingError as exc:
         print(f"followbot track: {exc}", file=sys.stderr)
         return 1
+
+
+def _open_with_defaults(path: str, remaps: dict[str, str]):
+    """The recording with its default scan source (and odometry, if it has one), plus what
+    ``remaps`` names."""
+    from followbot.bags import RecordingError, open_recording
+
+    rec = open_recording(path, remaps)
+    rec.mapping = {
+        src: dst
+        for src, dst in rec.mapping.items()
+        if src in remaps or dst in ("sensors/scan", "sensors/odom")
+    }
+    if "sensors/scan" not in rec.mapping.values():
+        raise RecordingError(
+            f"{rec.path}: no topic of it feeds sensors/scan by default; it has: "
+            + ", ".join(f"{t} ({ty})" for t, (ty, _) in sorted(rec.contents.items()))
+        )
+    return rec
 
 
 def _stage_settings(
@@ -116,6 +164,7 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     from followbot.mcapio import McapTopicWriter
     from followbot.runner import StageProcesses
     from followbot.services.runtime.bus import ZenohBus
+    from followbot.services.runtime.clock import ClockSettings
     from followbot.services.runtime.lockstep import LockstepBarrier
     from followbot.services.runtime.node import Node
     from followbot.services.runtime.session import free_loopback_endpoint, open_session
@@ -131,7 +180,11 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     people_rows: list[list] = []
     target_rows: list[list] = []
     session = open_session(ZenohSettings(listen=[endpoint]))
-    node = Node("track", NodeSettings(robot=robot, health_period_s=3600), ZenohBus(session))
+    # the recording sets the pace: a gap between its scans is no stamp from the future
+    node_settings = NodeSettings(
+        robot=robot, health_period_s=3600, clock=ClockSettings(max_ahead_s=None)
+    )
+    node = Node("track", node_settings, ZenohBus(session))
 
     most_at_once = [0]
 
@@ -211,6 +264,8 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
         print(f"  stages that did not answer in time: {timeouts}")
     for reason, n in rec.skipped.most_common():
         print(f"  skipped {n}: {reason}")
+    for warning in rec.warnings:
+        print(f"warning: {rec.path}: {warning}", file=sys.stderr)
     if rec.damage is not None:
         print(f"warning: {rec.path} is damaged: {rec.damage.describe()}", file=sys.stderr)
     print(f"wrote {out / 'tracks.mcap'}, {out / 'people.csv'}, {out / 'target.csv'}")
