@@ -67,7 +67,7 @@ import copy
 import math
 import statistics
 from collections import OrderedDict, deque
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 import numpy as np
@@ -85,6 +85,7 @@ from followbot.schemas import (
     TrackState,
     Verification,
 )
+from followbot.services.runtime.settings import removed
 
 from .estimators import Estimator, estimator_factory, wrap_angle
 
@@ -272,7 +273,28 @@ class OdometryBuffer:
 # --------------------------------------------------------------------------- settings, tracks
 
 
+_LOG = "docs/tracker_log.md"
+
+#: Settings that are gone: experiments measured and left off (their record: docs/tracker_log.md).
+RETIRED_SETTINGS: dict[str, str] = {
+    "occlusion_max_s": removed(f"keeping a hidden target past max_misses, measured in {_LOG}"),
+    "occlusion_look": removed("it only applied with occlusion_max_s, also removed"),
+    "front_approach_factor": removed(f"an experiment measured and left off, see {_LOG}"),
+    "lone_leg_offset_m": removed(
+        f"measured and left off; lone_leg_output_m moves the report, {_LOG}"
+    ),
+    "lone_leg_clear_m": removed("it only applied with lone_leg_offset_m, also removed"),
+    "look_near_walkers": removed(f"an experiment measured and left off, see {_LOG}"),
+    "look_out_of_view_deg": removed(f"an experiment measured and left off, see {_LOG}"),
+    "look_far_walking_m": removed(f"an experiment measured and left off, see {_LOG}"),
+    "look_confirm_hits": removed(f"the camera turns to a track once confirm_hits, see {_LOG}"),
+    "switch_needs_target_seen": removed(f"an experiment measured and left off, see {_LOG}"),
+}
+
+
 class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    retired_settings: ClassVar[dict[str, str]] = RETIRED_SETTINGS
+
     estimator: str = "particle"
     """Estimator plugin (entry-point group followbot.estimators): particle, ukf, ..."""
     estimator_settings: dict[str, Any] = {}
@@ -281,28 +303,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Seed of every random draw (each track's Generator is seeded with [seed, track id])."""
     # thesis 3.6.2.8 / DESIGN.md: lost after more than 8 consecutive misses (~1 s at 120 ms)
     max_misses: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = 8
-    occlusion_max_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 0.0
-    """Beyond the thesis, off by default: a miss of the target while the laser could not have
-    seen it -- something nearer covers its predicted position (perception/candidates
-    ``horizon``), or it lies outside the field of view -- does not count towards max_misses,
-    for up to this long since it was last seen. Its track coasts on meanwhile
-    (coast_velocity_s) and takes the person back when they come out from behind the pillar,
-    instead of being deleted after ~1 s and re-acquired by appearance; once past the thesis's
-    budget it takes only a candidate no other track takes, and it ends at once (the target
-    lost) when the laser sees through to where it should be and nobody is there, or when
-    someone new appears inside the search gate (occlusion_look). 3 s, ninth session:
-    occlusion_pillar tracked >= 0.98 of the visible time on 5 of 6 seeds (none by default),
-    but crowds and the cluttered office lose on some seeds (docs/tracker_log.md). 0, or
-    candidates without a horizon: every miss counts (the thesis)."""
-    occlusion_look: bool = True
-    """With occlusion_max_s: once a hidden target is past the thesis's miss budget (where the
-    thesis would have lost it), the camera and vision search for it as for a lost target
-    (look_while_lost, look_gate_m: the same gate, from the same moment) while its track
-    coasts on for the laser to take the person back where they come out. Vision accepting a
-    track inside the gate takes it at once (the hidden track goes), and a new person inside
-    the gate ends the hidden track (the target is lost, the search goes on): so a wrong guess
-    costs about what the thesis's loss would have. False: the camera keeps the coasting
-    command's angle and only the cap or a miss in plain view end the track."""
     occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
     """A return counts as hiding a track when it is this much nearer than the track's predicted
     range (a person's legs lie ~0.1 m either side of their centre)."""
@@ -342,11 +342,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """A lost target is re-taken by appearance only when vision's distance is at most this
     (None: the verifier's own threshold). In the simulator 94 % of the target's judgements lie
     at or below 0.7 and 17 % of the bystanders' (at 0.8: 98 % and 49 %)."""
-    switch_needs_target_seen: bool = False
-    """A verification preferring another track counts towards switch_votes only when vision
-    also judged the target's own candidate, or the target took none in that scan. Else
-    something vision judged alone -- a passer-by or a pillar in front of the target -- may
-    be preferred just because the camera could not see the target behind it."""
     reject_votes: Annotated[int, msgspec.Meta(ge=0, le=100)] = 2
     """Drop the target after this many consecutive verifications that saw its candidate and
     rejected it (appearance distance above the verifier's threshold): the robot stops rather
@@ -380,18 +375,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     (thesis_5_2_4_side_by_side: the bystander crossed 0.27 m in front and the target took
     them). Alone, such a candidate is taken (the target walking towards the robot, ahead of
     its lagging estimate) unless front_approach_factor says otherwise. None: off."""
-    front_approach_factor: Annotated[float, msgspec.Meta(ge=0)] | None = None
-    """Beyond the thesis (twelfth session; off by default), with front_margin_m: e.g. 2.0 --
-    alone, too, a candidate (on the target's bearing or not) is not the target's when it lies
-    more than front_margin_m + this x (the target's recent walking speed towards the laser,
-    from its steps) x (time since it was last seen) nearer than the prediction -- a jump
-    towards the laser its own walk cannot explain (the robot's drive is in the prediction
-    already). In
-    thesis_5_2_4_side_by_side (seeds 2 and 4) the target, walking ahead of the following
-    robot, took for one scan a passer-by 0.35 m nearer and 6-8 deg to its side, whose own
-    track did not hold that candidate. A target walking at the robot at 1.5 m/s may still
-    come 0.56 m nearer per scan. None: only when another track holds it (the ninth
-    session's rule)."""
     assignment: Literal["most_matches", "weighted"] = "weighted"
     """How the gated distances become an assignment. ``most_matches`` (before the fourteenth
     session): as many track-candidate pairs as the gates allow, and among those the least
@@ -420,21 +403,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     a split pair) scales its measurement noise by this. The thesis treats every candidate
     alike (1); a lone leg lies ~0.13 m from the person's centre on average in the simulator
     (two legs' middle: ~0.04 m), wherever the hidden leg happens to be in its stride."""
-    lone_leg_offset_m: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.0
-    """Beyond the thesis, off by default: a track updated with a lone leg (as for
-    one_leg_noise_scale) takes the person's centre this far beyond that leg, along its
-    bearing. A leg seen alone is mostly the near one hiding the other behind it, half a stride
-    (~0.2 m) apart, so the centre lies ~0.1 m farther away: in the simulator one-leg
-    candidates lie 0.06-0.10 m nearer than the person's centre on average (two-leg ones 0.006
-    m), and they made 80 % of ristic_circles' squared error. 0.1 over 60 runs (ninth session,
-    docs/tracker_log.md): RMSE lower on most scenarios (ristic_circles 0.083 -> 0.062 m), but
-    identity switches on two-person scenarios (two_people own seed 0 -> 1, 0.48 s) and 14.3 s
-    on wrong people against 5.8 s. 0: the thesis."""
-    lone_leg_clear_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
-    """... only for a track with no other track within this distance: near someone, a lone
-    leg may be hidden by, or pair with, them, and moving it outwards moved the target onto
-    whoever walked behind. (It did not remove those switches: criterion 3 leaves the
-    bystander without a track; docs/tracker_log.md, ninth session.)"""
     lone_leg_output_m: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.1
     """Beyond the thesis: the target's *reported* position takes a leg seen alone for a person
     centred this far beyond it along its bearing (as lone_leg_offset_m), while the filter
@@ -549,18 +517,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     look_dwell_s). 0 (before the fifteenth session): a single missed scan sent it to the next
     person or the point, and a track that flickers (someone half hidden among the shelves)
     made the camera swing 10 deg to and fro without reaching anyone (docs/tracker_log.md)."""
-    look_confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] | None = None
-    """Beyond the thesis, with look_while_lost: how many candidates a new track must have
-    taken before the camera turns to it (None: confirm_hits, 2). 1: from its first scan --
-    the camera then sets off one scan (0.12 s) sooner towards a target coming out from
-    behind something, and also turns to one-scan clutter (sixteenth session)."""
-    look_far_walking_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
-    """Beyond the thesis, with look_while_lost: a track farther than this from the laser is
-    looked at only while it walks (look_moving_mps). For laser_legs'
-    detector_settings_while_lost with a longer clip: the lost target who walked on beyond the
-    thesis's 3.5 m is looked at, the furniture that shows up beyond it is not (sixteenth
-    session: the cluttered office's camera held a shelf 3.7 m away for a 1 s dwell while the
-    target came back beside the robot). None: every track, whatever its range."""
     look_turn_deg_s: Annotated[float, msgspec.Meta(gt=0)] | None = 90.0
     """Beyond the thesis, with look_while_lost: the camera's pan rate (90 deg/s, thesis
     5.2.5). The look_dwell_s on a person runs from when a camera turning at this rate from
@@ -569,27 +525,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     coming back past the robot, was sent on to someone else after 1 s, still 60 deg short of
     her (seventeenth session; default since then, docs/tracker_log.md). None: from when it is
     sent."""
-    look_near_walkers: bool = False
-    """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks
-    at people *walking* (look_moving_mps) within look_wide_gate_m of where the lost target
-    should be, not only at that point (they are re-taken on an ordinary acceptance, as anyone
-    vision accepts there). Near the robot 1.5 m spans a wide arc: in door_corner (seed 3) the
-    target walked across in front of the robot, 0.04-0.55 m from the point but 40-100 deg
-    from it, unjudged. Walkers only, and past look_max_s someone standing is re-taken only on
-    a close match (look_wide_max_distance) wherever they are: a door frame's track near the
-    point, in view on the way, was accepted at 0.65-0.73 against 0.8. False: the point only."""
-    look_out_of_view_deg: Annotated[float, msgspec.Meta(gt=0, le=180)] | None = None
-    """Beyond the thesis, with look_wide_max_distance: past look_max_s the camera also looks,
-    in turn, at people *walking* within look_wide_gate_m of where the lost target should be
-    whose bearing lies more than this from the camera's bearing to that point -- those the
-    camera looking at the point does not show (the camera's half view is 23.75 deg); they are
-    re-taken on an ordinary acceptance, as anyone vision accepts there. look_near_walkers
-    looks at every walker near the point; this only at those out of the point's view. In
-    door_corner (seed 3) the target came back across the front of the stopped robot, inside
-    the 1.5 m but 40-100 deg from the point, and walked there 4 s unjudged. With 20 it is
-    re-taken after 1.2 s (4.2 s), tracked 0.75 -> 0.81, but followed 0.43 -> 0.33 (its model,
-    learnt on a door frame, loses it again); the other 75 of 76 runs do not change
-    (nineteenth session, docs/tracker_log.md). None: off."""
     look_new_first: bool = True
     """Beyond the thesis, with look_wide_max_distance: a newcomer not yet looked at since the
     loss ends the camera's dwell on where the target should be at once (the dwell is
@@ -626,10 +561,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             estimator_factory(self.estimator, self.estimator_settings)
         except LookupError as exc:  # plugins.UnknownPlugin
             raise ValueError(str(exc).strip("'\"")) from None
-        if self.lone_leg_output_m and self.lone_leg_offset_m:
-            raise ValueError(
-                "lone_leg_output_m and lone_leg_offset_m both move a lone leg out: set one"
-            )
 
 
 class Track:
@@ -639,7 +570,6 @@ class Track:
         "anchor",
         "born_ns",
         "estimator",
-        "hidden",
         "hits",
         "id",
         "last_seen_ns",
@@ -652,8 +582,6 @@ class Track:
         self.id = track_id
         self.estimator = estimator
         self.misses = 0
-        self.hidden = 0
-        """Of the current run of misses, those where the laser could not have seen the track."""
         self.hits = 1
         self.born_ns = stamp_ns
         self.last_seen_ns = stamp_ns
@@ -717,8 +645,6 @@ class Tracker:
         self._lost_v = np.zeros(2)  # its coasting velocity then, carried by ego-motion
         self._horizon: Horizon | None = None  # the last scan's (look_occluder_edge)
         self._reach: float | None = None  # the last scan's detector reach (look_within_reach)
-        # occlusion_look: the hidden target is past the miss budget and searched for as lost
-        self._searching = False
         self._last_stamp: int | None = None
         self._last_pose: Pose | None = None
         self._index = 0
@@ -773,7 +699,6 @@ class Tracker:
         self.target_id = -1
         self._had_target = False
         self._lost_at = None
-        self._searching = False
         self._switch = (-1, 0)
         self._breaks.clear()
         self._forget_looks()
@@ -905,8 +830,7 @@ class Tracker:
                 )
             if s.front_margin_m is not None and self.target_id in self.tracks:
                 # someone passing in front of the target hides it: not the target's candidate
-                # when another track can take it (alone, it may be the target coming closer,
-                # as far as its own walk explains: front_approach_factor)
+                # when another track can take it (alone, it may be the target coming closer)
                 r = ids.index(self.target_id)
                 held = self.tracks[self.target_id]
                 pred = held.position
@@ -919,19 +843,8 @@ class Tracker:
                 )
                 others = np.isfinite(np.delete(cost, r, axis=0)).any(axis=0)
                 block = (dr >= s.front_margin_m) & (db <= half) & others
-                if s.front_approach_factor is not None:  # alone: a jump its walk can't explain
-                    closing = self._closing_speed(held, pred, pose)
-                    since = max(stamp - held.last_seen_ns, 0) / _NS
-                    block |= dr > s.front_margin_m + s.front_approach_factor * closing * since
                 cost[r, block] = np.inf
-            # a target hidden for longer than the thesis's miss budget (occlusion_max_s; no
-            # other track lives that long) takes only what no other track takes: a person
-            # coming out from behind something is a new appearance, not a neighbour of where
-            # they went in
-            late = np.array(
-                [s.occlusion_max_s > 0 and self.tracks[tid].misses > s.max_misses for tid in ids]
-            )
-            finite = np.isfinite(cost) & ~late[:, None]
+            finite = np.isfinite(cost)
             if finite.any():
                 if s.assignment == "weighted":
                     # one price G for a miss, the widest gate: every gated pair weighs >= 0
@@ -947,14 +860,6 @@ class Tracker:
                         matched[ids[r]] = c
                         if best is not None and best[r, c]:
                             measured[ids[r]] = points[starts[c] + best[r, c]]
-            for r in np.flatnonzero(late).tolist():
-                row = cost[r].copy()
-                row[list(matched.values())] = np.inf
-                c = int(np.argmin(row))
-                if np.isfinite(row[c]):
-                    matched[ids[r]] = c
-                    if best is not None and best[r, c]:
-                        measured[ids[r]] = points[starts[c] + best[r, c]]
 
         # 5. update, count misses, start and delete tracks
         first = starts if starts is not None else np.arange(len(unit_cand))
@@ -962,7 +867,7 @@ class Tracker:
         zs = [measured.get(t.id, points[first[matched[t.id]]]) for t in updated]
         scales = None
         lone = None
-        if s.one_leg_noise_scale != 1.0 or s.lone_leg_offset_m or s.lone_leg_output_m:
+        if s.one_leg_noise_scale != 1.0 or s.lone_leg_output_m:
             # a lone leg, one leg of a pair, or a split pair's
             split = {c for c in unit_cand if unit_cand.count(c) > 1}
             lone = [
@@ -973,19 +878,6 @@ class Tracker:
             ]
             if s.one_leg_noise_scale != 1.0:
                 scales = np.where(lone, s.one_leg_noise_scale, 1.0)
-            if s.lone_leg_offset_m:  # the person's centre lies behind a leg seen alone
-                where = {t.id: t.position for t in self.tracks.values()}
-                for i, alone in enumerate(lone):
-                    r = float(np.hypot(*zs[i]))
-                    if not alone or r <= 0:
-                        continue
-                    me = where[updated[i].id]
-                    if all(
-                        float(np.hypot(*(xy - me))) > s.lone_leg_clear_m
-                        for tid, xy in where.items()
-                        if tid != updated[i].id
-                    ):
-                        zs[i] = zs[i] * (1.0 + s.lone_leg_offset_m / r)
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
             update_all([t.estimator for t in updated], np.array(zs), scales)
@@ -1001,65 +893,15 @@ class Tracker:
                 if s.coast_velocity_s > 0:
                     learn.append((t, t.last_seen_ns))
                 t.misses = 0
-                t.hidden = 0
                 t.hits += 1
                 t.last_seen_ns = stamp
             else:
                 t.misses += 1
-        target = self.tracks.get(self.target_id)
-        refuted = -1  # the hidden target's track, seen through past the miss budget
-        if (
-            s.occlusion_max_s > 0
-            and candidates.horizon is not None
-            and target is not None
-            and target.id not in matched
-        ):
-            # the target's track only: other people's tracks kept while hidden competed with
-            # the people coming out (crowd_ten: 8.3 -> 30.4 s on wrong people over 6 seeds)
-            hidden = hidden_from_laser(
-                target.position[None],
-                candidates.horizon,
-                s.occlusion_margin_m,
-                s.occlusion_radius_m,
-            )
-            if hidden[0]:
-                target.hidden += 1
-                flags.append("target_hidden")
-            elif target.misses > s.max_misses:
-                # past the budget only the occlusion kept it: a miss where the laser sees
-                # through to the prediction says the person is not there -- the guess is wrong
-                refuted = target.id
-        if self._searching and (target is None or target.misses == 0):
-            self._searching = False  # the laser took the person back (or the track is gone)
-            self._lost_at = None
-        elif (
-            s.occlusion_max_s > 0
-            and s.occlusion_look
-            and target is not None
-            and not self._searching
-            and target.misses > s.max_misses
-        ):
-            # where the thesis would have lost it: search as for a lost target (settings)
-            self._note_loss(target)
-            self._searching = True
         taken = set(matched.values())
         for u in range(len(unit_cand)):
             if u not in taken:
                 tid = self._new_track(points[first[u]], stamp)
                 matched[tid] = u
-        if self._searching and target is not None and refuted < 0:
-            gate = self._look_gate(since_loss=True)  # (the ninth session's end of the guess)
-            if any(
-                t is not target
-                and t.born_ns > target.last_seen_ns
-                and t.misses == 0
-                and float(np.hypot(*t.position)) >= s.look_min_range_m
-                and self._inside(gate, t)
-                for t in self.tracks.values()
-            ):
-                # someone new where the target can be: it may have come out there, not where
-                # its track guesses; its track goes, the target is lost and vision decides
-                refuted = target.id
         # from units back to the message's candidates (a split pair: the target's side wins)
         by_cand: dict[int, int] = {}
         for tid, u in matched.items():
@@ -1069,12 +911,7 @@ class Tracker:
         matched = {tid: c for c, tid in by_cand.items()}
         for tid in list(self.tracks):
             t = self.tracks[tid]
-            gone = t.misses > s.max_misses and (
-                t.misses - t.hidden > s.max_misses
-                or stamp - t.last_seen_ns > s.occlusion_max_s * _NS
-                or tid == refuted
-            )
-            if gone or t.estimator.expired():
+            if t.misses > s.max_misses or t.estimator.expired():
                 if tid == self.target_id:
                     self._lose_target(t)
                 del self.tracks[tid]
@@ -1087,7 +924,7 @@ class Tracker:
         # acquisition without vision (settings) and laser-only re-acquisition
         if self.target_id < 0:
             self._acquire_by_laser(z, matched, vision=not any(f in _NO_VISION for f in flags))
-        lost = (self.target_id < 0 or self._searching) and self._had_target and self.vision_alive
+        lost = self.target_id < 0 and self._had_target and self.vision_alive
         # with look_gate_m, only while the gate applies (look_max_s)
         wide = s.look_wide_max_distance is not None
         if lost and s.look_while_lost and (s.look_gate_m is None or wide or self._look_gate()):
@@ -1193,15 +1030,6 @@ class Tracker:
         speed = float(np.hypot(*v))
         cap = self.settings.coast_max_speed_mps
         return v * (cap / speed) if speed > cap else v
-
-    def _closing_speed(self, t: Track, pred: np.ndarray, pose: Pose | None) -> float:
-        """How fast track ``t`` (predicted at ``pred``, robot frame) has recently been walking
-        towards the laser (0 when walking away). The robot's own drive is not counted: the
-        prediction has it already (ego-motion)."""
-        r = float(np.hypot(*pred))
-        if r < 1e-6:
-            return 0.0
-        return max(0.0, -float(self._velocity(t, pose) @ pred) / r)
 
     def velocity_of(self, track_id: int) -> np.ndarray:
         """A track's coasting velocity (robot frame of the last scan), (0, 0) if unknown."""
@@ -1312,15 +1140,6 @@ class Tracker:
             return None  # the gate itself applies
         return where, s.look_wide_gate_m
 
-    def _standing_past_gate(self, tid: int) -> bool:
-        """look_near_walkers: past look_max_s, track ``tid`` is not walking."""
-        s = self.settings
-        return (
-            s.look_near_walkers
-            and self._last_gate() is not None
-            and not self._walking(tid, s.look_moving_mps)
-        )
-
     def _beyond_last_gate(self, tid: int) -> bool:
         last = self._last_gate()
         return last is not None and not self._inside(last, self.tracks.get(tid))
@@ -1365,34 +1184,21 @@ class Tracker:
         if tid >= 0 and self.tracks[tid].misses <= s.look_keep_misses:
             return
         dwelling = tid < 0 and last is not None and since and stamp - since <= s.look_dwell_s * _NS
-        # look_out_of_view_deg: where the camera looks when it looks at nobody (once per scan)
-        point = self._search_point() if last is not None and s.look_out_of_view_deg else None
 
         def eligible_here(t: Track) -> bool:
             if last is None:
                 return self._inside(gate, t)
             # past look_max_s: someone who appeared since the loss, away from where the target
-            # should be (there the camera looks at the point itself, as without the setting,
-            # and with look_near_walkers at whoever walks near it)
-            if self._inside(last, t):
-                return (s.look_near_walkers or self._out_of_point_view(t, point)) and (
-                    self._walking(t.id, s.look_moving_mps)
-                )
-            return t.born_ns > self._lost_ns
+            # should be (there the camera looks at the point itself)
+            return not self._inside(last, t) and t.born_ns > self._lost_ns
 
-        hits = s.confirm_hits if s.look_confirm_hits is None else s.look_confirm_hits
         eligible = [
             t
             for t in self.tracks.values()
-            if t.hits >= hits
+            if t.hits >= s.confirm_hits
             and t.misses == 0
             and self._look_rejected.get(t.id, 0) < s.look_rejections
             and float(np.hypot(*t.position)) >= s.look_min_range_m
-            and (
-                s.look_far_walking_m is None
-                or float(np.hypot(*t.position)) <= s.look_far_walking_m
-                or self._walking(t.id, s.look_moving_mps)
-            )
             and eligible_here(t)
         ]
         if dwelling:  # on where the target should be, between the rounds of newcomers
@@ -1462,7 +1268,6 @@ class Tracker:
 
     def _set_target(self, tid: int) -> None:
         self._rejects = 0
-        self._searching = False
         if self.target_id >= 0 and tid != self.target_id:
             self.target_switches += 1
         if tid != self.target_id:  # the shift is kept for the target only, from now on
@@ -1476,9 +1281,7 @@ class Tracker:
         self._switch = (-1, 0)
 
     def _lose_target(self, track: Track) -> None:
-        if not self._searching:  # (searching: lost for the gate since the miss budget ran out)
-            self._note_loss(track)
-        self._searching = False
+        self._note_loss(track)
         self.target_id = -1
         self._switch = (-1, 0)
 
@@ -1588,29 +1391,21 @@ class Tracker:
             tid = self._nearest_track(xy[0], self.settings.model_match_m)
             if tid < 0:
                 return
-        searching = self._searching and tid != self.target_id
-        if self.target_id < 0 or searching:
+        if self.target_id < 0:
             limit = self.settings.reacquire_max_distance
             if self._had_target and limit is not None and not chosen.distance <= limit:
                 return  # re-acquisition asks for a closer match than verification does
             # (held >= 0: dropped just now by this verification -- a switch, taken anywhere)
-            if (held < 0 or searching) and self._had_target:
+            if held < 0 and self._had_target:
                 if self.settings.look_while_lost and not self._in_look_gate(tid):
                     return  # not where the lost target can be now (look_gate_m)
                 wide = self.settings.look_wide_max_distance
                 if (
                     wide is not None
                     and not chosen.distance <= wide
-                    and (
-                        self._beyond_last_gate(tid)
-                        or self._beyond_loss_gate(tid)
-                        or self._standing_past_gate(tid)
-                    )
+                    and (self._beyond_last_gate(tid) or self._beyond_loss_gate(tid))
                 ):
                     return  # far from where the target went: only a close match re-takes it
-            if searching:  # the hidden track's person is this one: its coasting guess goes
-                del self.tracks[self.target_id]
-                self.target_id = -1
             self._set_target(tid)  # (re-)acquisition by appearance
             self._vision_sources = True
             return
@@ -1618,23 +1413,12 @@ class Tracker:
             self._switch = (-1, 0)
             self._vision_sources = True
             return
-        if self.settings.switch_needs_target_seen and self._target_hidden_in(v, scan):
-            return  # vision could not compare: someone (or something) hides the target
         prev, votes = self._switch
         votes = votes + 1 if prev == tid else 1
         self._switch = (tid, votes)
         if votes >= self.settings.switch_votes or self._repairs_split(tid):
             self._set_target(tid)
             self._vision_sources = True
-
-    def _target_hidden_in(self, v: Verification, scan: _Scan) -> bool:
-        """The target took a candidate in ``scan`` (the laser saw it) but vision did not judge
-        that candidate (out of the image, hidden in it by something nearer, too small)."""
-        mine = {i for i, t in scan.assoc.items() if t == self.target_id}
-        if not mine:
-            return False  # the target was not seen: vision's choice may well be it
-        judged = {c.index for c in v.candidates if c.distance is not None}
-        return not mine & judged
 
     def _repairs_split(self, tid: int) -> bool:
         """Vision chose a track next to the target while the target coasts: after a rollback
@@ -1795,9 +1579,8 @@ class Tracker:
 
     def _look_output(self) -> tuple[int, float, float]:
         """(look_track_id, look_x_m, look_y_m) for tracking/target: whom the camera should
-        look at while the target is lost (or, occlusion_look, hidden past the miss budget);
-        (-1, 0, 0) otherwise."""
-        if self.target_id >= 0 and not self._searching:
+        look at while the target is lost; (-1, 0, 0) otherwise."""
+        if self.target_id >= 0:
             followed = self.tracks.get(self.target_id)
             if followed is not None:  # the camera follows it (pan = heading)
                 xy = followed.position
@@ -1827,19 +1610,6 @@ class Tracker:
             if edge is not None:
                 where = edge  # hidden there: where it comes out of hiding
         return where
-
-    def _out_of_point_view(self, t: Track, where: np.ndarray | None) -> bool:
-        """look_out_of_view_deg: track ``t`` lies more than that off the camera's bearing to
-        ``where``, the search point (the camera looking there does not show it)."""
-        half = self.settings.look_out_of_view_deg
-        if half is None or where is None:
-            return False
-        off = math.remainder(
-            math.atan2(float(t.position[1]), float(t.position[0]))
-            - math.atan2(float(where[1]), float(where[0])),
-            math.tau,
-        )
-        return abs(math.degrees(off)) > half
 
     def _people_output(self, stamp: int, frame_id: str) -> People:
         s = self.settings

@@ -190,6 +190,17 @@ def test_bad_estimator_setting_is_a_settings_error():
         load_settings(TrackerNodeSettings, overrides=["estimator=nope"])
 
 
+def test_every_retired_tracker_setting_is_refused_with_its_own_message():
+    """Each key the tracker lists as retired is no setting any more, and naming it fails
+    with the table's message rather than an unknown-field error."""
+    retired = TrackerNodeSettings.retired_settings
+    assert retired and not set(retired) & set(TrackerNodeSettings.__struct_fields__)
+    for key, note in retired.items():
+        with pytest.raises(SettingsError) as err:
+            load_settings(TrackerNodeSettings, None, [f"{key}=1"])
+        assert str(err.value) == f"--set: {key} {note}"
+
+
 def test_the_tracker_keeps_the_target_model_for_a_restarted_vision_worker(pipeline):
     net, tracker, _ = pipeline
     model = TargetModel(
