@@ -26,8 +26,6 @@ from followbot.services.tracker.core import (
     OdometryBuffer,
     Tracker,
     TrackerSettings,
-    hidden_from_laser,
-    occluder_edge,
     se2_change,
     thesis_printed_transform,
     transform_points,
@@ -40,6 +38,7 @@ from followbot.services.tracker.estimators import (
     sorted_copy_resample,
     systematic_resample,
 )
+from followbot.services.tracker.search import hidden_from_laser, occluder_edge
 
 MS = 1_000_000
 SCAN_NS = 120 * MS
@@ -510,7 +509,7 @@ def test_late_verification_applies_to_the_scan_it_names_after_the_lag():
     # scan 1's verification is applied at step 4, scan 2's at step 5: two votes -> switch at 5
     assert targets[:4] == [a_id] * 4
     assert targets[4:] == [b_id] * 4
-    assert trk.verifications_applied == 2 and trk.target_switches == 1
+    assert trk.identity.verifications_applied == 2 and trk.identity.target_switches == 1
 
 
 def test_verification_naming_an_unknown_scan_is_counted_not_applied():
@@ -520,7 +519,7 @@ def test_verification_naming_an_unknown_scan_is_counted_not_applied():
     trk.add_verification(verification(3 * SCAN_NS, [(2.0, 0.0)], chosen=0))
     still_robot(trk, 11 * SCAN_NS)
     trk.step(cands(11 * SCAN_NS, (2.0, 0.0)))
-    assert trk.verifications_unmatched == 1 and trk.verifications_applied == 0
+    assert trk.identity.verifications_unmatched == 1 and trk.identity.verifications_applied == 0
 
 
 def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
@@ -1047,7 +1046,7 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     # the rejections of scans 1..R are applied at steps 2..R+1
     assert statuses[:reject_votes] == ["tracking"] * reject_votes
     assert statuses[reject_votes] == "lost"
-    assert trk.target_rejections >= 1
+    assert trk.identity.target_rejections >= 1
     # it comes back only by appearance: a verification that accepts the person
     trk2_k = 7
     still_robot(trk, trk2_k * SCAN_NS)
@@ -1068,7 +1067,7 @@ def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_ra
     )
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 5)
     assert ("lost" in statuses) == dropped
-    assert trk.rejections_near == (0 if dropped else 4)
+    assert trk.identity.rejections_near == (0 if dropped else 4)
 
 
 @pytest.mark.parametrize(
@@ -1083,7 +1082,7 @@ def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others
     settings = TrackerSettings(reject_min_range_m=0.7, near_guard_m=1.0, rollback=False)
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 6, others, hidden)
     assert ("lost" in statuses) == dropped
-    assert (trk.rejections_near > 0) != dropped
+    assert (trk.identity.rejections_near > 0) != dropped
 
 
 @pytest.mark.parametrize(
@@ -1189,13 +1188,13 @@ def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(r
         errors.append(math.hypot(target.x_m - 2.0, target.y_m))
         trk.add_verification(judged_at_two(k * SCAN_NS, points))
     if rollback:
-        assert trk.rollbacks >= 1
+        assert trk.identity.rollbacks >= 1
         # the passer-by pulls the estimate for one scan at most (vision is one scan late)
         assert max(errors[3:]) < 0.35 and max(errors[5:]) < 0.1, errors
         assert target.status == "tracking" and target.track_id == target_id
         assert any(math.hypot(p.x_m - 1.65, p.y_m + 0.5) < 0.2 for p in people.tracks)
     else:
-        assert trk.rollbacks == 0
+        assert trk.identity.rollbacks == 0
         assert max(errors) > 0.25  # the estimate went onto the passer-by
 
 
@@ -1214,7 +1213,7 @@ def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
         if k == 3:
             continue  # vision did not judge scan 3
         trk.add_verification(judged_at_two(k * SCAN_NS, points))
-    assert trk.rollbacks == 1
+    assert trk.identity.rollbacks == 1
     assert target.status == "tracking"
     assert math.hypot(target.x_m - 2.0, target.y_m) < 0.1
 
@@ -1227,7 +1226,7 @@ def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
         assert target.status == "tracking"
         trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
-    assert trk.rollbacks == 0
+    assert trk.identity.rollbacks == 0
 
 
 def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
@@ -1242,7 +1241,7 @@ def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
         target, _ = trk.step(cands(k * SCAN_NS, (x, 0.0)))
         statuses.append(target.status)
         trk.add_verification(rejection(k * SCAN_NS, (x, 0.0), distance=d))
-    assert trk.rollbacks == 1
+    assert trk.identity.rollbacks == 1
     assert "lost" not in statuses and statuses.count("coasting") <= 2, statuses
     assert statuses[-2:] == ["tracking", "tracking"]
     assert math.hypot(target.x_m - 2.25, target.y_m) < 0.1
@@ -1255,7 +1254,7 @@ def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
         assert target.status == "tracking"
         trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
-    assert trk.target_rejections == 0
+    assert trk.identity.target_rejections == 0
 
 
 @pytest.mark.parametrize(("coast", "turn"), [(1.0, 0.0), (1.0, 0.4), (0.0, 0.0)])
@@ -1414,7 +1413,7 @@ def test_while_lost_behind_a_pillar_the_camera_looks_where_the_target_comes_out(
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS), horizon=pillar))
     assert target.status == "lost" and target.look_track_id == -1
-    where = trk._predicted_lost()
+    where = trk.search.predicted()
     assert 0.0 < _bearing_deg(where) < 50.0  # behind the pillar
     look = (target.look_x_m, target.look_y_m)
     if edge:

@@ -1,4 +1,4 @@
-"""Per-person estimators, chosen by name (issue 6; DESIGN.md "Presets").
+"""Per-person estimators, chosen by name (DESIGN.md "Presets").
 
 ``estimator_factory("particle")`` returns a callable ``(x_m, y_m, rng) -> Estimator`` that the
 tracker calls for each new track. Estimators are plugins of the entry-point group
