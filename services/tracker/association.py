@@ -1,16 +1,16 @@
 """Association: which track takes which candidate of a scan.
 
 1. Units: what tracks are associated with. Each candidate is one unit, except a two-leg
-   candidate whose legs lie farther apart than ``split_pair_m``: it may be one leg each of two
-   people. When each leg lies in the gate of a different track (nearest first) it becomes two
-   one-leg units; otherwise one unit whose points are its centre and each leg, a track taking
-   the point nearest its prediction.
+   candidate whose legs lie farther apart than ``association.split_pair_m``: it may be one
+   leg each of two people. When each leg lies in the gate of a different track (nearest
+   first) it becomes two one-leg units; otherwise one unit whose points are its centre and
+   each leg, a track taking the point nearest its prediction.
 2. Gating: each estimator's distance to each point, infinite beyond its gate; a unit costs
    what its best point costs.
-3. Someone in front of the target (``front_margin_m``): a unit this much nearer to the laser
-   than the target's prediction, on its bearing, that another track's gate also holds is not
-   the target's: it is someone passing in front, hiding it.
-4. Assignment, one rule by name (``assignment``, :data:`ASSIGNMENTS`):
+3. Someone in front of the target (``association.front_margin_m``): a unit this much
+   nearer to the laser than the target's prediction, on its bearing, that another track's
+   gate also holds is not the target's: it is someone passing in front, hiding it.
+4. Assignment, one rule by name (``association.assignment``, :data:`ASSIGNMENTS`):
    ``weighted`` -- the assignment of greatest total weight, a gated pair weighing
    (G - distance), G the widest gate of the scan's tracks: a track left unmatched costs G, so a
    second match is made only when it adds less than G to the total distance. One G for all:
@@ -59,7 +59,7 @@ def assign_most_matches(cost: np.ndarray, widest_gate: float) -> list[tuple[int,
     return [(r, c) for r, c in zip(rows.tolist(), cols.tolist(), strict=True) if finite[r, c]]
 
 
-#: The assignment rules by name (the ``assignment`` setting).
+#: The assignment rules by name (the ``association.assignment`` setting).
 ASSIGNMENTS: dict[str, AssignmentRule] = {
     "weighted": assign_weighted,
     "most_matches": assign_most_matches,
@@ -119,7 +119,7 @@ class Associator:
     def __init__(self, settings: TrackerSettings, estimator_class: type) -> None:
         self.settings = settings
         self._cost_all = getattr(estimator_class, "cost_all", None)  # batch gating, if any
-        self._assign = ASSIGNMENTS[settings.assignment]
+        self._assign = ASSIGNMENTS[settings.association.assignment]
 
     def associate(
         self, tracks: dict[int, Track], candidates: PersonCandidates, z: np.ndarray, target_id: int
@@ -137,7 +137,7 @@ class Associator:
             best = np.column_stack(
                 [np.argmin(g, axis=1) for g in np.split(cost_p, a.starts[1:], axis=1)]
             )
-        if self.settings.front_margin_m is not None and target_id in tracks:
+        if self.settings.association.front_margin_m is not None and target_id in tracks:
             self._block_in_front(cost, ids.index(target_id), tracks[target_id], a)
         if np.isfinite(cost).any():
             widest = max(tracks[tid].estimator.gate(tracks[tid].misses) for tid in ids)
@@ -161,8 +161,8 @@ class Associator:
 
     def _block_in_front(self, cost: np.ndarray, r: int, target: Track, a: Association) -> None:
         """Someone passing in front of the target hides it: a unit on its bearing, at least
-        front_margin_m nearer, is not the target's when another track can take it (alone, it
-        may be the target coming closer)."""
+        association.front_margin_m nearer, is not the target's when another track can take it
+        (alone, it may be the target coming closer)."""
         s = self.settings
         pred = target.position
         centres = a.points[a.starts] if a.starts is not None else a.points
@@ -171,14 +171,14 @@ class Associator:
         dr = r_pred - np.hypot(centres[:, 0], centres[:, 1])
         db = np.abs(wrap_angle(np.arctan2(centres[:, 1], centres[:, 0]) - math.atan2(*pred[::-1])))
         others = np.isfinite(np.delete(cost, r, axis=0)).any(axis=0)
-        cost[r, (dr >= s.front_margin_m) & (db <= half) & others] = np.inf
+        cost[r, (dr >= s.association.front_margin_m) & (db <= half) & others] = np.inf
 
     def _units(
         self, tracks: dict[int, Track], candidates: PersonCandidates, z: np.ndarray
     ) -> tuple[list[int], np.ndarray, np.ndarray | None]:
         """(per unit its candidate, every unit's points, where each unit's points begin or
         None when every unit is one point): module doc, step 1."""
-        split = self.settings.split_pair_m
+        split = self.settings.association.split_pair_m
         cands = candidates.candidates
         wide = set()
         if split:

@@ -242,8 +242,8 @@ class Tracker:
         zs = [a.point(t.id) for t in updated]
         lone = [a.lone_leg(t.id) for t in updated]
         scales = None
-        if s.one_leg_noise_scale != 1.0:
-            scales = np.where(lone, s.one_leg_noise_scale, 1.0)
+        if s.association.one_leg_noise_scale != 1.0:
+            scales = np.where(lone, s.association.one_leg_noise_scale, 1.0)
         update_all = getattr(self._cls, "update_all", None)
         if update_all is not None and len(updated) > 1:
             update_all([t.estimator for t in updated], np.array(zs), scales)

@@ -2,7 +2,7 @@
 
 Acquisition. With vision, a target model (perception/target_model: its laser position) or a
 verification's chosen candidate makes a track the target; without a camera (``acquire:
-nearest``), the nearest candidate ahead within ``acquire_range_m``.
+nearest``), the nearest candidate ahead within ``identity.acquire_range_m``.
 
 Late vision (DESIGN.md "Timing model"). A :class:`~followbot.schemas.Verification` names the
 scan stamp whose candidates it judged. The tracker keeps, for the last ``history_scans``
@@ -10,7 +10,7 @@ scans, which track took each candidate and the odometry pose at the scan (:class
 a verification is applied to the state *as of that scan*: the chosen candidate's track (or,
 if that track is gone, the track nearest to the chosen position carried to the current frame
 by odometry) becomes the target when there is none, and replaces the current target after
-``switch_votes`` consecutive verifications that prefer it. In lock-step runs
+``identity.switch_votes`` consecutive verifications that prefer it. In lock-step runs
 ``vision_lag_scans = N`` holds the verification of scan k until the step of scan k + N (at
 least the next step: the tracker never waits for vision).
 
@@ -19,11 +19,11 @@ candidate the target took at scan k is *not* the target (appearance distance abo
 verifier's threshold) -- typically another person walking between the robot and the target,
 or a passer-by's leg paired with one of the target's -- the target's updates since scan k
 followed someone else. The tracker keeps, for each scan, a snapshot of the target's estimator
-after the prediction and before the update; on such a verification (``rollback: true``) it
+after the prediction and before the update; on such a verification (``identity.rollback: true``) it
 (1) turns the current estimator, which now follows the other person, into a new track of its
 own, and (2) gives the target the snapshot of scan k carried to now by odometry and the
 motion model, as a coasting track. The two then compete for the next candidates in the
-assignment, so the target no longer jumps onto the person who hid it. ``reject_votes``
+assignment, so the target no longer jumps onto the person who hid it. ``identity.reject_votes``
 consecutive rejections still drop the target.
 
 Re-acquisition of a lost target: by appearance, only where it can be (search.py's gate);
@@ -91,7 +91,7 @@ class Identity:
         self._switch: tuple[int, int] = (-1, 0)  # (track preferred by vision, consecutive votes)
         self._rejects = 0  # consecutive verifications that rejected the target's candidate
         self._confirmed_index = -1  # last scan whose verification accepted the target's candidate
-        # scans at which the target missed or had another track within near_guard_m
+        # scans at which the target missed or had another track within identity.near_guard_m
         self._breaks: deque[int] = deque()
         # counters for health and tests
         self.target_rejections = 0  # targets dropped because vision rejected them
@@ -139,7 +139,7 @@ class Identity:
     def prior(self) -> tuple[int, Any] | None:
         """The target's id and a copy of its estimator now (after the prediction, before the
         update), for a later rollback; None without rollback or target."""
-        if not self.settings.rollback or self.target_id < 0:
+        if not self.settings.identity.rollback or self.target_id < 0:
             return None
         est = self._tracks.by_id[self.target_id].estimator
         snapshot = getattr(est, "snapshot", None)
@@ -160,7 +160,11 @@ class Identity:
     def end_scan(self, stamp: int, scan: Scan) -> None:
         """Remember the scan stepped at ``stamp`` for late verifications."""
         s = self.settings
-        if s.near_guard_m > 0 and s.reject_min_range_m > 0 and self.target_id in self._tracks.by_id:
+        if (
+            s.identity.near_guard_m > 0
+            and s.identity.reject_min_range_m > 0
+            and self.target_id in self._tracks.by_id
+        ):
             self._note_break()  # this scan's index: before it moves on
         self.history[stamp] = scan
         while len(self.history) > s.history_scans:
@@ -172,11 +176,11 @@ class Identity:
     def acquire_by_laser(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
         """Without vision: the first target is the nearest candidate ahead (``acquire:
         nearest``); a lost one is re-taken by a walker near where it was lost, soon after."""
-        s = self.settings
+        s, si = self.settings, self.settings.identity
         if not self.had_target and s.acquire == "nearest" and len(z):
             r = np.hypot(z[:, 0], z[:, 1])
             bearing = np.abs(np.arctan2(z[:, 1], z[:, 0]))
-            ahead = (bearing <= math.radians(s.acquire_bearing_deg)) & (r <= s.acquire_range_m)
+            ahead = (bearing <= math.radians(si.acquire_bearing_deg)) & (r <= si.acquire_range_m)
             if ahead.any():
                 c = int(np.argmin(np.where(ahead, r, np.inf)))
                 for tid, ci in matched.items():
@@ -184,18 +188,18 @@ class Identity:
                         self.set_target(tid)
                         return
         lost_at = self._search.lost_at
-        if not self.had_target or vision or lost_at is None or s.laser_reacquire_m <= 0:
+        if not self.had_target or vision or lost_at is None or si.laser_reacquire_m <= 0:
             return
-        max_s = s.laser_reacquire_max_s
+        max_s = si.laser_reacquire_max_s
         if max_s is not None and self._now.stamp_ns - self._search.lost_ns > max_s * _NS:
             return  # lost too long ago: whoever passes there now is someone else
-        best, best_d = -1, s.laser_reacquire_m
+        best, best_d = -1, si.laser_reacquire_m
         for tid, ci in matched.items():
             d = float(np.hypot(*(z[ci] - lost_at)))
             if (
                 d <= best_d
-                and float(np.hypot(*z[ci])) >= s.laser_reacquire_min_range_m
-                and self._tracks.walking(tid, s.laser_reacquire_min_speed_mps)
+                and float(np.hypot(*z[ci])) >= si.laser_reacquire_min_range_m
+                and self._tracks.walking(tid, si.laser_reacquire_min_speed_mps)
             ):
                 best, best_d = tid, d
         if best >= 0:
@@ -215,7 +219,7 @@ class Identity:
         then = self.odometry.pose_at(model.stamp_ns)
         if then is not None and pose is not None:
             xy = transform_points(xy, then, pose)
-        tid = self._tracks.nearest(xy[0], self.settings.model_match_m)
+        tid = self._tracks.nearest(xy[0], self.settings.identity.model_match_m)
         if tid < 0:
             tid = self._tracks.new(xy[0], model.stamp_ns).id
         self.set_target(tid)
@@ -268,7 +272,7 @@ class Identity:
         prev, votes = self._switch
         votes = votes + 1 if prev == tid else 1
         self._switch = (tid, votes)
-        if votes >= self.settings.switch_votes or self._repairs_split(tid):
+        if votes >= self.settings.identity.switch_votes or self._repairs_split(tid):
             self.set_target(tid)
             self.vision_sources = True
 
@@ -281,14 +285,14 @@ class Identity:
         xy = np.array([[chosen.x_m, chosen.y_m]])
         if scan.pose is not None and pose is not None:
             xy = transform_points(xy, scan.pose, pose)
-        return self._tracks.nearest(xy[0], self.settings.model_match_m)
+        return self._tracks.nearest(xy[0], self.settings.identity.model_match_m)
 
     def _reacquire(self, tid: int, distance: float | None, dropped_now: bool) -> None:
         """Vision chose track ``tid`` while there is no target: (re-)acquisition by
         appearance. A target lost earlier is re-taken only on a close enough match
-        (reacquire_max_distance) and where it can be (search.py); one dropped by this very
+        (identity.reacquire_max_distance) and where it can be (search.py); one dropped by this very
         verification is a switch, taken anywhere."""
-        limit = self.settings.reacquire_max_distance
+        limit = self.settings.identity.reacquire_max_distance
         if self.had_target and limit is not None and not distance <= limit:
             return  # re-acquisition asks for a closer match than verification does
         if not dropped_now and self.had_target and not self._search.may_retake(tid, distance):
@@ -303,19 +307,19 @@ class Identity:
         if target is None or target.misses == 0:
             return False
         d = float(np.hypot(*(self._tracks.by_id[tid].position - target.position)))
-        return d <= self.settings.model_match_m
+        return d <= self.settings.identity.model_match_m
 
     def _judge_target(self, v: Verification, scan: Scan) -> None:
         """Negative evidence: vision saw the target's candidate and said it is not the target.
         (While the target is lost: which tracks vision has rejected, for the search.)"""
         s = self.settings
         lost = self.target_id < 0 and self.had_target
-        if lost and s.look_while_lost and v.threshold is not None:
+        if lost and s.search.enabled and v.threshold is not None:
             for c in v.candidates:
                 tid = scan.assoc.get(c.index, -1)
                 if tid >= 0 and c.in_view and c.distance is not None and c.distance > v.threshold:
                     self._search.note_rejection(tid)
-        if self.target_id < 0 or v.threshold is None or not s.reject_votes:
+        if self.target_id < 0 or v.threshold is None or not s.identity.reject_votes:
             return
         mine = [i for i, tid in scan.assoc.items() if tid == self.target_id]
         judged = {c.index: c for c in v.candidates}
@@ -328,25 +332,25 @@ class Identity:
             return
         if seen[0].distance <= v.threshold or not self._rejection_counts(seen[0], v, scan):
             return  # close enough (only another was closer: the switch votes decide)
-        if s.rollback:
+        if s.identity.rollback:
             self._rollback(v.stamp_ns, scan, (seen[0].x_m, seen[0].y_m))
         self._rejects += 1
-        if self._rejects >= s.reject_votes:
+        if self._rejects >= s.identity.reject_votes:
             self._rejects = 0
             self.target_rejections += 1
             self.lose_target(self._tracks.by_id[self.target_id])
 
     def _rejection_counts(self, seen: VerifiedCandidate, v: Verification, scan: Scan) -> bool:
         """A rejection of the target's candidate counts, unless it is too near the camera
-        (reject_min_range_m) or just above the threshold (reject_hysteresis) for a target
-        surely the one vision last accepted."""
+        (identity.reject_min_range_m) or just above the threshold (identity.reject_hysteresis)
+        for a target surely the one vision last accepted."""
         s = self.settings
-        if math.hypot(seen.x_m, seen.y_m) < s.reject_min_range_m and (
-            s.near_guard_m <= 0 or self._surely_the_target(scan.index)
+        if math.hypot(seen.x_m, seen.y_m) < s.identity.reject_min_range_m and (
+            s.identity.near_guard_m <= 0 or self._surely_the_target(scan.index)
         ):
             self.rejections_near += 1
             return False  # too near for the camera to tell
-        h = s.reject_hysteresis
+        h = s.identity.reject_hysteresis
         surely = h > 0 and seen.distance <= v.threshold + h
         return not (surely and self._surely_the_target(scan.index))
 
@@ -356,7 +360,7 @@ class Identity:
         broken = target.misses > 0
         if not broken:
             xy = target.position
-            guard = self.settings.near_guard_m
+            guard = self.settings.identity.near_guard_m
             broken = any(
                 float(np.hypot(*(t.position - xy))) < guard
                 for t in self._tracks.by_id.values()
@@ -379,7 +383,7 @@ class Identity:
         """Vision rejected what the target took at scan k: split the track (module doc).
 
         The target goes back to before the first of its updates that vision has not
-        confirmed (at most ``rollback_max_s`` before scan k): a passer-by often pulls the
+        confirmed (at most ``identity.rollback_max_s`` before scan k): a passer-by often pulls the
         target a scan or two before vision sees the two apart, in scans it did not judge."""
         tid = self.target_id
         if tid not in self._tracks.by_id:
@@ -394,7 +398,7 @@ class Identity:
         if scan.pose is not None and scan_j.pose is not None:
             xy = transform_points(xy, scan.pose, scan_j.pose)  # into scan j's frame
         jump = math.hypot(xy[0, 0] - before.mean[0], xy[0, 1] - before.mean[1])
-        if jump < s.rollback_jump_m:
+        if jump < s.identity.rollback_jump_m:
             return
         track = self._tracks.by_id[tid]
         # 1. what the target followed since scan j is somebody else: their own track
@@ -419,14 +423,14 @@ class Identity:
 
     def _rollback_start(self, tid: int, stamp_k: int, scan: Scan) -> tuple[int, Scan] | None:
         """(stamp, scan) of the first scan since the last acceptance, up to scan k and at most
-        rollback_max_s before it, that kept a snapshot of target ``tid``."""
+        identity.rollback_max_s before it, that kept a snapshot of target ``tid``."""
         for stamp_j, st in self.history.items():
             if (
                 st.index > self._confirmed_index
                 and st.index <= scan.index
                 and st.target_prior is not None
                 and st.target_prior[0] == tid
-                and stamp_k - stamp_j <= self.settings.rollback_max_s * _NS
+                and stamp_k - stamp_j <= self.settings.identity.rollback_max_s * _NS
             ):
                 return stamp_j, st
         return None

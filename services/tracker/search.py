@@ -7,11 +7,11 @@ target should be now. Vision judges whoever the camera shows and may re-take the
 appearance; the gate below also limits whom it may re-take (identity.py).
 
 Where the target should be: where it was lost, moved on at its coasting velocity for at
-most ``look_predict_s``, kept within the detector's reach (``look_within_reach``). The gate
-round it has radius ``look_gate_m + look_gate_mps x t``, t the time since the target was
-last seen (``look_gate_since_seen``), for ``look_max_s`` after the loss. Past that, the camera
-looks at that point and, in turn, at each newcomer farther than ``look_wide_gate_m`` from
-it, whom vision re-takes only on a close match (``look_wide_max_distance``).
+most ``search.predict_s``, kept within the detector's reach (``search.within_reach``). The gate
+round it has radius ``search.gate_m + search.gate_mps x t``, t the time since the target was
+last seen (``search.gate_since_seen``), for ``search.max_s`` after the loss. Past that, the camera
+looks at that point and, in turn, at each newcomer farther than ``search.wide_gate_m`` from
+it, whom vision re-takes only on a close match (``search.wide_max_distance``).
 
 When the point is hidden from the laser (the scan's ``horizon`` has something nearer on its
 bearing), the camera looks past the edge of the cover, where the person will come out
@@ -137,13 +137,13 @@ class Search:
         self.lost_ns = 0  # scan stamp at which the target was lost
         self._lost_seen_ns = 0  # ... and at which it was last seen before that
         self._lost_v = np.zeros(2)  # its coasting velocity then, carried by ego-motion
-        self.horizon: Horizon | None = None  # the last scan's (look_occluder_edge)
-        self.reach: float | None = None  # the last scan's detector reach (look_within_reach)
+        self.horizon: Horizon | None = None  # the last scan's (search.occluder_edge)
+        self.reach: float | None = None  # the last scan's detector reach (search.within_reach)
         self._look: tuple[int, int] = (-1, 0)  # (track looked at, since when)
         self._rejected: dict[int, int] = {}  # rejections by vision since the loss, per track
-        self._done: set[int] = set()  # looked at for look_dwell_s without a judgement
-        self._looked: set[int] = set()  # looked at since the loss (look_new_first)
-        self._bearing: float | None = None  # where the camera was last sent (look_turn_deg_s)
+        self._done: set[int] = set()  # looked at for search.dwell_s without a judgement
+        self._looked: set[int] = set()  # looked at since the loss (search.new_first)
+        self._bearing: float | None = None  # where the camera was last sent (search.turn_deg_s)
 
     # ------------------------------------------------------------------ the loss
 
@@ -164,8 +164,8 @@ class Search:
         if self.lost_at is None:
             return None
         elapsed = (self._now.stamp_ns - self.lost_ns) / _NS
-        where = self.lost_at + self._lost_v * min(elapsed, self.settings.look_predict_s)
-        limit = self.reach if self.settings.look_within_reach else None
+        where = self.lost_at + self._lost_v * min(elapsed, self.settings.search.predict_s)
+        limit = self.reach if self.settings.search.within_reach else None
         if limit is not None:  # beyond the detector's reach: where it would come back into it
             r = float(np.hypot(*where))
             if r > limit:
@@ -175,29 +175,29 @@ class Search:
     # ------------------------------------------------------------------ gates
 
     def gate(self, since_loss: bool = False) -> Gate | None:
-        """The look gate, or None when it does not apply (off, no loss, or look_max_s past).
-        ``since_loss``: the radius grown since the loss, whatever look_gate_since_seen says."""
+        """The look gate, or None when it does not apply (off, no loss, or search.max_s past).
+        ``since_loss``: the radius grown since the loss, whatever search.gate_since_seen says."""
         s = self.settings
         where = self.predicted()
-        if s.look_gate_m is None or where is None:
+        if s.search.gate_m is None or where is None:
             return None
         elapsed = (self._now.stamp_ns - self.lost_ns) / _NS
-        if elapsed > s.look_max_s:
+        if elapsed > s.search.max_s:
             return None
-        if s.look_gate_since_seen and not since_loss:
+        if s.search.gate_since_seen and not since_loss:
             elapsed = (self._now.stamp_ns - self._lost_seen_ns) / _NS
-        return where, s.look_gate_m + s.look_gate_mps * elapsed
+        return where, s.search.gate_m + s.search.gate_mps * elapsed
 
     def wide_gate(self) -> Gate | None:
-        """Past look_max_s with look_wide_max_distance: (where the lost target should be,
-        look_wide_gate_m); else None."""
+        """Past search.max_s with search.wide_max_distance: (where the lost target should be,
+        search.wide_gate_m); else None."""
         s = self.settings
         where = self.predicted()
-        if s.look_wide_max_distance is None or s.look_gate_m is None or where is None:
+        if s.search.wide_max_distance is None or s.search.gate_m is None or where is None:
             return None
-        if (self._now.stamp_ns - self.lost_ns) / _NS <= s.look_max_s:
+        if (self._now.stamp_ns - self.lost_ns) / _NS <= s.search.max_s:
             return None  # the gate itself applies
-        return where, s.look_wide_gate_m
+        return where, s.search.wide_gate_m
 
     @staticmethod
     def inside(gate: Gate | None, t: Track | None) -> bool:
@@ -208,18 +208,18 @@ class Search:
 
     def may_retake(self, tid: int, distance: float | None) -> bool:
         """Vision accepting track ``tid`` at appearance ``distance`` may re-take the lost
-        target: inside the look gate, and only on a close match (look_wide_max_distance) past
+        target: inside the look gate, and only on a close match (search.wide_max_distance) past
         the wide gate or in the gate's outer ring grown since the target was last seen."""
         s = self.settings
         t = self._tracks.by_id.get(tid)
-        if s.look_while_lost and not self.inside(self.gate(), t):
+        if s.search.enabled and not self.inside(self.gate(), t):
             return False
-        wide = s.look_wide_max_distance
+        wide = s.search.wide_max_distance
         if wide is None or (distance is not None and distance <= wide):
             return True
         last = self.wide_gate()
         beyond_wide = last is not None and not self.inside(last, t)
-        beyond_loss = s.look_gate_since_seen and not self.inside(self.gate(since_loss=True), t)
+        beyond_loss = s.search.gate_since_seen and not self.inside(self.gate(since_loss=True), t)
         return not (beyond_wide or beyond_loss)
 
     # ------------------------------------------------------------------ the camera
@@ -238,14 +238,14 @@ class Search:
         """Once per scan: choose whom to look at while ``lost`` and the gate applies (or the
         look goes on past it), else forget what was looked at."""
         s = self.settings
-        wide = s.look_wide_max_distance is not None
-        if lost and s.look_while_lost and (s.look_gate_m is None or wide or self.gate()):
+        wide = s.search.wide_max_distance is not None
+        if lost and s.search.enabled and (s.search.gate_m is None or wide or self.gate()):
             self._choose(stamp)
         else:
             self.forget_looks()
 
     def _choose(self, stamp: int) -> None:
-        """Keep looking at the current track until vision judged it or look_dwell_s passed,
+        """Keep looking at the current track until vision judged it or search.dwell_s passed,
         then the next: walking first, then nearest to where the target should be."""
         s = self.settings
         gate = self.gate()
@@ -253,17 +253,19 @@ class Search:
         tid, since = self._look
         if tid >= 0 and (
             tid not in self._tracks.by_id
-            or self._rejected.get(tid, 0) >= s.look_rejections
-            or stamp - since > s.look_dwell_s * _NS
+            or self._rejected.get(tid, 0) >= s.search.rejections
+            or stamp - since > s.search.dwell_s * _NS
         ):
             self._done.add(tid)
             tid = -1
-        if tid >= 0 and self._tracks.by_id[tid].misses <= s.look_keep_misses:
+        if tid >= 0 and self._tracks.by_id[tid].misses <= s.search.keep_misses:
             return
-        dwelling = tid < 0 and last is not None and since and stamp - since <= s.look_dwell_s * _NS
+        dwelling = (
+            tid < 0 and last is not None and since and stamp - since <= s.search.dwell_s * _NS
+        )
         eligible = self._eligible(gate, last)
         if dwelling:  # on where the target should be, between the rounds of newcomers
-            if not (s.look_new_first and any(t.id not in self._looked for t in eligible)):
+            if not (s.search.new_first and any(t.id not in self._looked for t in eligible)):
                 return
             eligible = [t for t in eligible if t.id not in self._looked]
         fresh = [t for t in eligible if t.id not in self._done]
@@ -280,10 +282,10 @@ class Search:
         if gate is not None:
             origin = gate[0]
         elif last is not None:
-            origin = last[0]  # past look_max_s: still nearest where it should be first
+            origin = last[0]  # past search.max_s: still nearest where it should be first
 
         def rank(t: Track) -> tuple[bool, float]:
-            walking = self._tracks.walking(t.id, s.look_moving_mps)
+            walking = self._tracks.walking(t.id, s.search.moving_mps)
             return not walking, float(np.hypot(*(t.position - origin)))
 
         best = min(fresh, key=rank)
@@ -293,7 +295,7 @@ class Search:
 
     def _eligible(self, gate: Gate | None, last: Gate | None) -> list[Track]:
         """Confirmed tracks seen this scan, far enough from the laser, not rejected too often,
-        inside the gate -- or, past look_max_s, newcomers away from where the target should be
+        inside the gate -- or, past search.max_s, newcomers away from where the target should be
         (there the camera looks at the point itself)."""
         s = self.settings
 
@@ -307,15 +309,15 @@ class Search:
             for t in self._tracks.by_id.values()
             if t.hits >= s.confirm_hits
             and t.misses == 0
-            and self._rejected.get(t.id, 0) < s.look_rejections
-            and float(np.hypot(*t.position)) >= s.look_min_range_m
+            and self._rejected.get(t.id, 0) < s.search.rejections
+            and float(np.hypot(*t.position)) >= s.search.min_range_m
             and here(t)
         ]
 
     def _arrival(self, t: Track, stamp: int) -> int:
         """When the camera, sent now from where it was last sent, can point at ``t``
-        (look_turn_deg_s): the dwell runs from then."""
-        rate = self.settings.look_turn_deg_s
+        (search.turn_deg_s): the dwell runs from then."""
+        rate = self.settings.search.turn_deg_s
         if rate is None or self._bearing is None:
             return stamp
         bearing = math.atan2(t.position[1], t.position[0])
@@ -343,13 +345,13 @@ class Search:
 
     def search_point(self) -> np.ndarray | None:
         """Where the camera looks when it looks at nobody while the target is lost: where the
-        target should be, or past the edge of what hides that point (look_occluder_edge);
+        target should be, or past the edge of what hides that point (search.occluder_edge);
         None without a gate."""
         s = self.settings
-        if not (s.look_while_lost and s.look_gate_m is not None):
+        if not (s.search.enabled and s.search.gate_m is not None):
             return None
         where = self.predicted()
-        if where is not None and s.look_occluder_edge and self.horizon is not None:
+        if where is not None and s.search.occluder_edge and self.horizon is not None:
             edge = occluder_edge(
                 where, self._lost_v, self.horizon, s.occlusion_margin_m, s.occlusion_radius_m
             )

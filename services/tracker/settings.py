@@ -1,5 +1,10 @@
-"""The tracker's settings, and the settings that were removed (a file naming one is refused
-with the reason: services/runtime/settings.py ``retired_settings``).
+"""The tracker's settings, and the settings that were removed or renamed (a file naming one is
+refused with the reason or the new key: services/runtime/settings.py ``retired_settings``).
+
+The settings that tune one role are nested under its name -- ``association``, ``identity``,
+``search`` (``--set search.gate_m=0.8``, or in a file ``search: {gate_m: 0.8}``); the rest
+are top-level. The flat names of the nested ones (``look_gate_m``, ``switch_votes``, ...)
+are refused with the dotted key to use instead.
 
 Defaults marked "beyond the thesis" were chosen by closed-loop measurements; the line after
 each such setting points into docs/tracker_log.md, where the runs are recorded.
@@ -11,11 +16,17 @@ from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 
-from followbot.services.runtime.settings import removed
+from followbot.services.runtime.settings import removed, renamed
 
 from .estimators import estimator_factory
 
-__all__ = ["RETIRED_SETTINGS", "TrackerSettings"]
+__all__ = [
+    "RETIRED_SETTINGS",
+    "AssociationSettings",
+    "IdentitySettings",
+    "SearchSettings",
+    "TrackerSettings",
+]
 
 _LOG = "docs/tracker_log.md"
 
@@ -33,34 +44,50 @@ RETIRED_SETTINGS: dict[str, str] = {
     "look_far_walking_m": removed(f"an experiment measured and left off, see {_LOG}"),
     "look_confirm_hits": removed(f"the camera turns to a track once confirm_hits, see {_LOG}"),
     "switch_needs_target_seen": removed(f"an experiment measured and left off, see {_LOG}"),
+    # settings nested by role: the old flat key names the new dotted one
+    "assignment": renamed("association.assignment"),
+    "split_pair_m": renamed("association.split_pair_m"),
+    "front_margin_m": renamed("association.front_margin_m"),
+    "one_leg_noise_scale": renamed("association.one_leg_noise_scale"),
+    "acquire_range_m": renamed("identity.acquire_range_m"),
+    "acquire_bearing_deg": renamed("identity.acquire_bearing_deg"),
+    "model_match_m": renamed("identity.model_match_m"),
+    "switch_votes": renamed("identity.switch_votes"),
+    "reacquire_max_distance": renamed("identity.reacquire_max_distance"),
+    "reject_votes": renamed("identity.reject_votes"),
+    "reject_min_range_m": renamed("identity.reject_min_range_m"),
+    "reject_hysteresis": renamed("identity.reject_hysteresis"),
+    "near_guard_m": renamed("identity.near_guard_m"),
+    "rollback": renamed("identity.rollback"),
+    "rollback_max_s": renamed("identity.rollback_max_s"),
+    "rollback_jump_m": renamed("identity.rollback_jump_m"),
+    "laser_reacquire_m": renamed("identity.laser_reacquire_m"),
+    "laser_reacquire_min_speed_mps": renamed("identity.laser_reacquire_min_speed_mps"),
+    "laser_reacquire_min_range_m": renamed("identity.laser_reacquire_min_range_m"),
+    "laser_reacquire_max_s": renamed("identity.laser_reacquire_max_s"),
+    "look_while_lost": renamed("search.enabled"),
+    "look_dwell_s": renamed("search.dwell_s"),
+    "look_rejections": renamed("search.rejections"),
+    "look_min_range_m": renamed("search.min_range_m"),
+    "look_moving_mps": renamed("search.moving_mps"),
+    "look_gate_m": renamed("search.gate_m"),
+    "look_gate_mps": renamed("search.gate_mps"),
+    "look_gate_since_seen": renamed("search.gate_since_seen"),
+    "look_predict_s": renamed("search.predict_s"),
+    "look_within_reach": renamed("search.within_reach"),
+    "look_max_s": renamed("search.max_s"),
+    "look_wide_max_distance": renamed("search.wide_max_distance"),
+    "look_wide_gate_m": renamed("search.wide_gate_m"),
+    "look_keep_misses": renamed("search.keep_misses"),
+    "look_turn_deg_s": renamed("search.turn_deg_s"),
+    "look_new_first": renamed("search.new_first"),
+    "look_occluder_edge": renamed("search.occluder_edge"),
 }
 
 
-class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    retired_settings: ClassVar[dict[str, str]] = RETIRED_SETTINGS
+class AssociationSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Which track takes which candidate (association.py)."""
 
-    # ------------------------------------------------------------------ estimator, lifecycle
-    estimator: str = "particle"
-    """Estimator plugin (entry-point group followbot.estimators): particle, ukf, ..."""
-    estimator_settings: dict[str, Any] = {}
-    """Overrides of the estimator's own settings, e.g. {particles: 500, resampler: sorted_copy}."""
-    seed: int = 0
-    """Seed of every random draw (each track's Generator is seeded with [seed, track id])."""
-    max_misses: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = 8
-    """A track is deleted after more than this many consecutive misses (thesis 3.6.2.8: 8,
-    about 1 s at 120 ms); the target is then lost."""
-    confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
-    """A new track is reported in tracking/people (and looked at while the target is lost)
-    once it took this many candidates."""
-    coast_velocity_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
-    """Beyond the thesis: a track that missed its candidate moves on at the person's recent
-    velocity -- the median of its step velocities over this many seconds, so one update
-    pulled aside by a passer-by's leg does not turn it -- instead of staying where it was last
-    seen. Only for estimators without velocity memory (the particle filter). 0: off."""
-    coast_max_speed_mps: Annotated[float, msgspec.Meta(gt=0)] = 2.5
-    """The coasting velocity is clipped to this speed (a brisk walk)."""
-
-    # ------------------------------------------------------------------ association
     assignment: Literal["most_matches", "weighted"] = "weighted"
     """How the gated distances become an assignment (association.py). ``weighted``: the
     assignment of greatest total weight, a gated pair weighing (G - distance), G the widest
@@ -85,28 +112,12 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     a split pair) scales its measurement noise by this. A lone leg lies ~0.13 m from the
     person's centre on average in the simulator (two legs' middle: ~0.04 m). 1: the thesis,
     every candidate alike."""
-    occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
-    """A return counts as hiding a person when it is this much nearer than the person's
-    range (a person's legs lie ~0.1 m either side of their centre)."""
-    occlusion_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 0.2
-    """Half-width of a person as the laser sees them: the bearings checked round a position
-    for cover, and the bearing window of front_margin_m."""
 
-    # ------------------------------------------------------------------ reported position
-    lone_leg_output_m: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.1
-    """Beyond the thesis: the target's *reported* position takes a leg seen alone for a person
-    centred this far beyond it along its bearing (the near leg mostly hides the other), while
-    the filter that associates candidates keeps the leg where it was measured. The estimate
-    is carried forward with a shift: what it would be had every lone leg of its updates been
-    moved out. tracking/target and the target's tracking/people entry report estimate plus
-    shift (tracking/target also the shift, ``shift_x_m``/``_y_m``); association, gates,
-    coasting and rollbacks use the estimate alone. Particle estimator only; 0: off.
-    docs/tracker_log.md: RMSE <= 0.08 m on 75 of 76 runs (69 without)."""
 
-    # ------------------------------------------------------------------ identity
-    acquire: Literal["vision", "nearest"] = "vision"
-    """How the first target is chosen: by vision (a verification or perception/target_model),
-    or, without a camera, the nearest candidate ahead within acquire_range_m."""
+class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Which track is the target: acquisition, vision's votes and rejections, rollback,
+    re-acquisition without vision (identity.py)."""
+
     acquire_range_m: Annotated[float, msgspec.Meta(gt=0)] = 3.0
     acquire_bearing_deg: Annotated[float, msgspec.Meta(gt=0, le=180)] = 45.0
     model_match_m: Annotated[float, msgspec.Meta(gt=0)] = 0.5
@@ -163,75 +174,118 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     3 s; later, whoever passes where the target was lost is someone else. Beyond the thesis.
     docs/tracker_log.md: time on wrong people over 76 runs 16.2 -> 8.4 s."""
 
-    # ------------------------------------------------------------------ search (while lost)
-    look_while_lost: bool = True
+
+class SearchSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Where the camera looks for a lost target, and whom vision may re-take (search.py)."""
+
+    enabled: bool = True
     """Beyond the thesis: while the target is lost (and vision alive), name in tracking/target
     a person for the camera to look at (``look_*``), so vision can judge them and re-acquire
     the target by appearance; the controller pans there, the base stays still. Walking tracks
     first, nearest to where the target should be first; each in turn until vision has judged
-    it (or look_dwell_s passed); those vision rejected look_rejections times are skipped.
+    it (or dwell_s passed); those vision rejected ``rejections`` times are skipped.
     False: the camera stays where the target was lost (the thesis).
     docs/tracker_log.md: a target behind a pillar re-acquired in 0.0-1.56 s instead of ~21 s."""
-    look_dwell_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
-    look_rejections: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
-    look_min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
+    dwell_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    rejections: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
     """Nearer than this the camera is not turned to a person (it would see too little of them
     to judge). docs/tracker_log.md: 0.3 re-takes a target coming back beside the stopped robot
     0.1-1.4 s sooner than 0.5."""
-    look_moving_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.25
+    moving_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.25
     """A track at least this fast counts as walking (looked at first)."""
-    look_gate_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.5
-    """Beyond the thesis, with look_while_lost: look only at tracks near where the lost target
-    should be now -- within look_gate_m + look_gate_mps x (time since the loss) of its last
-    position moved on at its coasting velocity (for at most look_predict_s) -- and re-take by
-    appearance only such a track, for look_max_s after the loss; with no such track the
+    gate_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.5
+    """Beyond the thesis, while enabled: look only at tracks near where the lost target
+    should be now -- within gate_m + gate_mps x (time since the loss) of its last
+    position moved on at its coasting velocity (for at most predict_s) -- and re-take by
+    appearance only such a track, for max_s after the loss; with no such track the
     camera looks at that predicted point. (A verification that drops the target by rejecting
     it and chooses another track is a switch: that track is taken wherever it is.) None: look
     at every track in turn, for as long as the target is lost."""
-    look_gate_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.5
-    look_gate_since_seen: bool = True
+    gate_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    gate_since_seen: bool = True
     """The gate grows with the time since the target was last *seen* (its last laser update),
     not since the loss was declared, which comes a miss budget (~1 s) later while a hidden
     person walks on. Vision re-takes someone in that outer ring (outside the radius grown
-    since the loss) only on a close match, look_wide_max_distance. False: since the loss."""
-    look_predict_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
-    look_within_reach: bool = True
+    since the loss) only on a close match, wide_max_distance. False: since the loss."""
+    predict_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
+    within_reach: bool = True
     """Where the lost target should be is kept within the detector's reach
     (perception/candidates ``reach_m``): a target who walked out of reach is looked for, and
     re-taken on an ordinary acceptance, where it would come back into it. Candidates without
     a reach: as False, the point walks on.
     docs/tracker_log.md: of 76 runs one changes, tracked 0.75 -> 0.85."""
-    look_max_s: Annotated[float, msgspec.Meta(ge=0)] = 4.0
+    max_s: Annotated[float, msgspec.Meta(ge=0)] = 4.0
     """How long after the loss the look gate applies."""
-    look_wide_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = 0.45
-    """Past look_max_s the camera also looks, in turn, at each newcomer -- a person first
-    tracked after the loss -- farther than look_wide_gate_m from where the target should be,
+    wide_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = 0.45
+    """Past max_s the camera also looks, in turn, at each newcomer -- a person first
+    tracked after the loss -- farther than wide_gate_m from where the target should be,
     with a dwell on that point between rounds, and vision re-takes someone that far away only
     on a close match: distance at most this. Nearer, anyone vision accepts is taken. For a
     target that comes back somewhere else than where it went out of view. None: off.
     docs/tracker_log.md: 0.45 lies below every bystander's distance in 30 runs (lowest 0.468)."""
-    look_wide_gate_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
+    wide_gate_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
     """docs/tracker_log.md: targets came back 0.6 m and 2.2 m from where they should be."""
-    look_keep_misses: Annotated[int, msgspec.Meta(ge=0, le=100)] = 2
+    keep_misses: Annotated[int, msgspec.Meta(ge=0, le=100)] = 2
     """The camera keeps looking at the person it turned to while their track has missed at
-    most this many scans in a row (within look_dwell_s), so a track that flickers (someone
+    most this many scans in a row (within dwell_s), so a track that flickers (someone
     half hidden) does not swing the camera to and fro. 0: a single miss moves it on."""
-    look_turn_deg_s: Annotated[float, msgspec.Meta(gt=0)] | None = 90.0
-    """The camera's pan rate (thesis 5.2.5: 90 deg/s). The look_dwell_s on a person runs from
+    turn_deg_s: Annotated[float, msgspec.Meta(gt=0)] | None = 90.0
+    """The camera's pan rate (thesis 5.2.5: 90 deg/s). The dwell_s on a person runs from
     when a camera turning at this rate from where it was last sent can point at them, not
     from when it is sent (a turn of 178 deg takes 2 s). None: from when it is sent."""
-    look_new_first: bool = True
+    new_first: bool = True
     """A newcomer not yet looked at since the loss ends the camera's dwell on where the target
     should be at once (the dwell is between rounds of looking again at the same people).
     False: the dwell runs out first."""
-    look_occluder_edge: bool = True
+    occluder_edge: bool = True
     """When nobody is there to look at and the point where the lost target should be is
     hidden from the laser (something nearer covers it in the scan's horizon), the camera looks
     past the edge of that cover on the side the target was walking towards, where it will come
-    out (search.occluder_edge). The gate, and whom vision may re-take, do not change.
+    out (search.py's occluder_edge). The gate, and whom vision may re-take, do not change.
     docs/tracker_log.md: re-acquired within 1 s 31 of 55 occlusions (28 of 54 without)."""
 
-    # ------------------------------------------------------------------ timing
+
+class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    retired_settings: ClassVar[dict[str, str]] = RETIRED_SETTINGS
+
+    estimator: str = "particle"
+    """Estimator plugin (entry-point group followbot.estimators): particle, ukf, ..."""
+    estimator_settings: dict[str, Any] = {}
+    """Overrides of the estimator's own settings, e.g. {particles: 500, resampler: sorted_copy}."""
+    seed: int = 0
+    """Seed of every random draw (each track's Generator is seeded with [seed, track id])."""
+    max_misses: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = 8
+    """A track is deleted after more than this many consecutive misses (thesis 3.6.2.8: 8,
+    about 1 s at 120 ms); the target is then lost."""
+    confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
+    """A new track is reported in tracking/people (and looked at while the target is lost)
+    once it took this many candidates."""
+    coast_velocity_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
+    """Beyond the thesis: a track that missed its candidate moves on at the person's recent
+    velocity -- the median of its step velocities over this many seconds, so one update
+    pulled aside by a passer-by's leg does not turn it -- instead of staying where it was last
+    seen. Only for estimators without velocity memory (the particle filter). 0: off."""
+    coast_max_speed_mps: Annotated[float, msgspec.Meta(gt=0)] = 2.5
+    """The coasting velocity is clipped to this speed (a brisk walk)."""
+    occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
+    """A return counts as hiding a person when it is this much nearer than the person's
+    range (a person's legs lie ~0.1 m either side of their centre)."""
+    occlusion_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 0.2
+    """Half-width of a person as the laser sees them: the bearings checked round a position
+    for cover, and the bearing window of association.front_margin_m."""
+    lone_leg_output_m: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.1
+    """Beyond the thesis: the target's *reported* position takes a leg seen alone for a person
+    centred this far beyond it along its bearing (the near leg mostly hides the other), while
+    the filter that associates candidates keeps the leg where it was measured. The estimate
+    is carried forward with a shift: what it would be had every lone leg of its updates been
+    moved out. tracking/target and the target's tracking/people entry report estimate plus
+    shift (tracking/target also the shift, ``shift_x_m``/``_y_m``); association, gates,
+    coasting and rollbacks use the estimate alone. Particle estimator only; 0: off.
+    docs/tracker_log.md: RMSE <= 0.08 m on 75 of 76 runs (69 without)."""
+    acquire: Literal["vision", "nearest"] = "vision"
+    """How the first target is chosen: by vision (a verification or perception/target_model),
+    or, without a camera, the nearest candidate ahead within identity.acquire_range_m."""
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
     vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
@@ -244,6 +298,12 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Time step of the first scan (thesis 4.1.1: 120 ms)."""
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     """Longer gaps between scans are clamped (a paused recording must not explode the cloud)."""
+    association: AssociationSettings = msgspec.field(default_factory=AssociationSettings)
+    """Which track takes which candidate: ``--set association.assignment=most_matches``."""
+    identity: IdentitySettings = msgspec.field(default_factory=IdentitySettings)
+    """Which track is the target: ``--set identity.switch_votes=3``."""
+    search: SearchSettings = msgspec.field(default_factory=SearchSettings)
+    """Where to look for a lost target: ``--set search.gate_m=0.8``."""
 
     def __post_init__(self) -> None:
         # checked while the settings load, so an unknown estimator or a bad estimator setting

@@ -23,6 +23,7 @@ from followbot.services.tracker.estimators import (
     estimator_factory,
     registry,
 )
+from followbot.services.tracker.settings import IdentitySettings
 
 from .test_tracker_closed_loop import STANDING
 
@@ -302,7 +303,7 @@ def test_nearest_with_the_seeds_rule_loses_the_target_at_the_first_miss():
             estimator="nearest",
             estimator_settings={"max_unseen_s": 0.0},
             acquire="nearest",
-            laser_reacquire_min_speed_mps=0.0,  # the person stands: re-taken all the same
+            identity=IdentitySettings(laser_reacquire_min_speed_mps=0.0),
         )
     )
     statuses = []

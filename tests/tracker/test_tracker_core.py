@@ -39,6 +39,11 @@ from followbot.services.tracker.estimators import (
     systematic_resample,
 )
 from followbot.services.tracker.search import hidden_from_laser, occluder_edge
+from followbot.services.tracker.settings import (
+    AssociationSettings,
+    IdentitySettings,
+    SearchSettings,
+)
 
 MS = 1_000_000
 SCAN_NS = 120 * MS
@@ -279,8 +284,8 @@ def test_particle_batch_steps_match_the_per_track_steps(resampler, velocity_mode
 
 @pytest.mark.parametrize("name", ["particle", "ukf", "kalman_window"])
 def test_a_noisier_measurement_moves_the_estimate_less(name):
-    """noise_scale (the tracker's one_leg_noise_scale) widens the measurement noise: the same
-    measurement 0.2 m off pulls the estimate less, and 1 is the estimator's own model."""
+    """noise_scale (the tracker's association.one_leg_noise_scale) widens the measurement noise:
+    the same measurement 0.2 m off pulls the estimate less, and 1 is the estimator's own model."""
     make = estimator_factory(name)
     moved = {}
     for scale in (1.0, 3.0):
@@ -296,12 +301,16 @@ def test_a_noisier_measurement_moves_the_estimate_less(name):
 
 
 def test_one_leg_candidates_pull_the_track_less_when_asked():
-    """one_leg_noise_scale: a person seen by both legs, then by one leg 0.15 m aside (the
-    other hidden): the track follows the lone leg less (1 = the thesis, every candidate
+    """association.one_leg_noise_scale: a person seen by both legs, then by one leg 0.15 m aside
+    (the other hidden): the track follows the lone leg less (1 = the thesis, every candidate
     alike)."""
     out = {}
     for scale in (1.0, 3.0):
-        trk = Tracker(TrackerSettings(acquire="nearest", one_leg_noise_scale=scale))
+        trk = Tracker(
+            TrackerSettings(
+                acquire="nearest", association=AssociationSettings(one_leg_noise_scale=scale)
+            )
+        )
         for k in range(6):
             still_robot(trk, k * SCAN_NS)
             trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
@@ -419,7 +428,9 @@ def test_weighted_assignment_does_not_give_the_target_s_candidate_away(assignmen
     default 0.35 m leaves the cross pair at the target's gate's edge)."""
     trk = Tracker(
         TrackerSettings(
-            acquire="nearest", assignment=assignment, estimator_settings={"gate_m": 0.4}
+            acquire="nearest",
+            estimator_settings={"gate_m": 0.4},
+            association=AssociationSettings(assignment=assignment),
         )
     )
     target, other = (2.0, 0.0), (2.0, -0.6)
@@ -486,7 +497,7 @@ def test_late_verification_applies_to_the_scan_it_names_after_the_lag():
     """A at y=-0.8, B at y=+0.8; the target starts on A. Vision says B, late: the stamps it
     names are held for vision_lag_scans steps, then settle the target on B's track even though
     by then both have moved."""
-    trk = Tracker(TrackerSettings(vision_lag_scans=3, switch_votes=2))
+    trk = Tracker(TrackerSettings(vision_lag_scans=3, identity=IdentitySettings(switch_votes=2)))
     trk.set_vision_alive(True)
 
     def at(k):
@@ -523,7 +534,9 @@ def test_verification_naming_an_unknown_scan_is_counted_not_applied():
 
 
 def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
-    trk = following_at_two(look_gate_m=None)  # anyone vision takes (the gate: below)
+    trk = following_at_two(
+        search=SearchSettings(gate_m=None)
+    )  # anyone vision takes (the gate: below)
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))  # vision is fresh
     for k in range(1, 11):  # the target disappears: lost after 9 misses
         still_robot(trk, k * SCAN_NS)
@@ -544,9 +557,11 @@ def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
 
 @pytest.mark.parametrize(("limit", "reacquired"), [(None, True), (0.7, False), (0.8, True)])
 def test_reacquisition_can_ask_for_a_closer_match_than_verification(limit, reacquired):
-    """reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost target
-    is re-taken from that only when the limit allows it."""
-    trk = following_at_two(reacquire_max_distance=limit, look_gate_m=None)
+    """identity.reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost
+    target is re-taken from that only when the limit allows it."""
+    trk = following_at_two(
+        identity=IdentitySettings(reacquire_max_distance=limit), search=SearchSettings(gate_m=None)
+    )
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
     for k in range(1, 11):
         still_robot(trk, k * SCAN_NS)
@@ -573,9 +588,9 @@ def lost_at_two(**settings):
 
 
 def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
-    """look_while_lost: nearest to where the target was lost first; a person vision rejected
-    look_rejections times is not looked at again; none while tracking or when switched off."""
-    trk, target = lost_at_two(look_gate_m=None, look_dwell_s=10.0)
+    """search.enabled: nearest to where the target was lost first; a person vision rejected
+    search.rejections times is not looked at again; none while tracking or when switched off."""
+    trk, target = lost_at_two(search=SearchSettings(gate_m=None, dwell_s=10.0))
     assert target.status == "lost" and target.look_track_id == -1  # nobody to look at
     a, b = (1.5, 1.0), (3.0, -1.0)  # a: 1.1 m from where the target was lost, b: 1.4 m
     looks = []
@@ -593,7 +608,7 @@ def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
     assert looks[1:4] == [ids[a]] * 3
     assert looks[4:] == [ids[b]] * 5  # a was rejected twice (scans 13, 14): the camera turns to b
     assert (target.look_x_m, target.look_y_m) == pytest.approx(b, abs=0.05)
-    off = following_at_two(look_while_lost=False)
+    off = following_at_two(search=SearchSettings(enabled=False))
     for k in range(1, 15):
         still_robot(off, k * SCAN_NS)
         target, _ = off.step(cands(k * SCAN_NS, *([a, b] if k > 10 else [])))
@@ -603,7 +618,7 @@ def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
 def test_while_lost_the_camera_turns_to_a_newcomer_once_it_is_confirmed():
     """While lost, the camera turns to a new track once it took confirm_hits (2) candidates --
     the scan after it appeared -- when it is also reported in tracking/people."""
-    trk, target = lost_at_two(look_gate_m=None)
+    trk, target = lost_at_two(search=SearchSettings(gate_m=None))
     first_look = 1
     assert target.status == "lost" and target.look_track_id == -1
     looks, reported = [], []
@@ -618,10 +633,10 @@ def test_while_lost_the_camera_turns_to_a_newcomer_once_it_is_confirmed():
 
 @pytest.mark.parametrize("rate", [None, 90.0])
 def test_look_turn_deg_s_starts_the_dwell_when_the_camera_can_be_there(rate):
-    """look_turn_deg_s: the camera, last sent to (2, 0) where the target was lost, is sent to
-    a newcomer 117 deg round; unjudged, it moves on after look_dwell_s (1 s) -- counted from
+    """search.turn_deg_s: the camera, last sent to (2, 0) where the target was lost, is sent to
+    a newcomer 117 deg round; unjudged, it moves on after search.dwell_s (1 s) -- counted from
     when the camera is sent, or (90 deg/s) from when it can have turned there, 1.3 s later."""
-    trk, target = lost_at_two(look_gate_m=None, look_dwell_s=1.0, look_turn_deg_s=rate)
+    trk, target = lost_at_two(search=SearchSettings(gate_m=None, dwell_s=1.0, turn_deg_s=rate))
     assert target.status == "lost"
     a, b = (-0.5, 1.0), (-1.0, -1.0)  # a nearer where the target was lost: looked at first
     looks = []
@@ -648,13 +663,14 @@ def _walk_then_hide(trk, scans_hidden):
 
 
 def _looks_past_look_max_s(start, step_m, **settings):
-    """_walk_then_hide for 20 scans with the look gate of 1 s and look_wide_max_distance,
+    """_walk_then_hide for 20 scans with the look gate of 1 s and search.wide_max_distance,
     then 10 scans of a walker from ``start`` moving ``step_m`` a scan along +y: (the last
     target state, the look_track_id of each of those scans)."""
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, laser_reacquire_m=0.0,
         **settings,
-    )  # fmt: skip
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45),
+        identity=IdentitySettings(laser_reacquire_m=0.0),
+    )
     target, k = _walk_then_hide(trk, 20)
     looks = []
     for j in range(k, k + 10):
@@ -665,10 +681,10 @@ def _looks_past_look_max_s(start, step_m, **settings):
 
 
 def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
-    """look_gate_m: after the loss the camera looks where the target should be by now (moved
+    """search.gate_m: after the loss the camera looks where the target should be by now (moved
     on at its walking velocity), and vision re-takes only someone near there; after
-    look_max_s anyone vision accepts, as without the gate."""
-    trk = following_at_two(look_while_lost=True, look_gate_m=0.5, look_max_s=4.0)
+    search.max_s anyone vision accepts, as without the gate."""
+    trk = following_at_two(search=SearchSettings(enabled=True, gate_m=0.5, max_s=4.0))
     target, k = _walk_then_hide(trk, 10)
     assert target.status == "lost" and target.look_track_id == -1
     lost_y = target.y_m
@@ -701,13 +717,13 @@ def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
     [(True, 0.4, True), (True, 0.6, False), (False, 0.4, False)],
 )
 def test_look_gate_grows_from_when_the_target_was_last_seen(since_seen, distance, retaken):
-    """look_gate_since_seen: the loss is declared after the miss budget (9 scans here), and the
+    """search.gate_since_seen: the loss is declared after the miss budget (9 scans here), and the
     hidden person walked on all that time. Someone 0.9 m from where the target should be,
     0.4 s after the loss, is within reach of a walker last seen 1.5 s ago (0.5 + 0.5 x 1.5 m),
     not of one counted from the loss (0.5 + 0.5 x 0.4 m): looked at only with the gate grown
-    from the last sighting, and re-taken there only on a close match (look_wide_max_distance,
+    from the last sighting, and re-taken there only on a close match (search.wide_max_distance,
     0.45)."""
-    trk = following_at_two(look_gate_m=0.5, look_max_s=4.0, look_gate_since_seen=since_seen)
+    trk = following_at_two(search=SearchSettings(gate_m=0.5, max_s=4.0, gate_since_seen=since_seen))
     target, k = _walk_then_hide(trk, 10)
     assert target.status == "lost" and target.look_track_id == -1
     out = (target.look_x_m - 0.9, target.look_y_m)
@@ -725,17 +741,17 @@ def test_look_gate_grows_from_when_the_target_was_last_seen(since_seen, distance
 
 def test_after_look_max_s_the_gate_no_longer_applies():
     trk = following_at_two(
-        look_while_lost=True, look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=None
+        search=SearchSettings(enabled=True, gate_m=0.5, max_s=1.0, wide_max_distance=None)
     )
     target, k = _walk_then_hide(trk, 10)
     back = (2.0, -0.5)
-    for j in range(k, k + 14):  # 1.7 s: past look_max_s
+    for j in range(k, k + 14):  # 1.7 s: past search.max_s
         still_robot(trk, j * SCAN_NS)
         target, _ = trk.step(cands(j * SCAN_NS, back))
         trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
     assert target.status == "tracking" and target.y_m == pytest.approx(-0.5, abs=0.1)
     # without the gate the bystander is taken as soon as vision accepts it
-    trk = following_at_two(look_gate_m=None)
+    trk = following_at_two(search=SearchSettings(gate_m=None))
     target, k = _walk_then_hide(trk, 10)
     for j in range(k, k + 4):
         still_robot(trk, j * SCAN_NS)
@@ -746,15 +762,15 @@ def test_after_look_max_s_the_gate_no_longer_applies():
 
 @pytest.mark.parametrize("distance", [0.6, 0.4])
 def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_match(distance):
-    """look_wide_max_distance: past look_max_s the camera looks at people far from where the
+    """search.wide_max_distance: past search.max_s the camera looks at people far from where the
     target should be (not only at that point), and vision re-takes such a person only on a
     close match (bellotto_cluttered_office: the target comes back past the stopped robot)."""
     looks = {}
     for wide in (None, 0.45):
-        trk = following_at_two(look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=wide)
+        trk = following_at_two(search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=wide))
         target, k = _walk_then_hide(trk, 10)
         seen = []
-        for j in range(k, k + 20):  # 2.4 s: past look_max_s; a walker 3 m from the gate
+        for j in range(k, k + 20):  # 2.4 s: past search.max_s; a walker 3 m from the gate
             walker = (1.0 + 0.06 * (j - k), -1.5)
             still_robot(trk, j * SCAN_NS)
             target, _ = trk.step(cands(j * SCAN_NS, walker))
@@ -770,7 +786,7 @@ def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_matc
             target, _ = trk.step(cands(j * SCAN_NS, walker))
         retaken = target.status == "tracking" and target.y_m == pytest.approx(-1.5, abs=0.15)
         if wide is None:
-            assert retaken  # as before: anyone vision accepts past look_max_s
+            assert retaken  # as before: anyone vision accepts past search.max_s
         else:
             assert retaken == (distance <= wide)
     assert set(looks[None]) == {-1}  # the camera stays on the point where the target should be
@@ -779,20 +795,20 @@ def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_matc
 
 @pytest.mark.parametrize("keep", [0, 2])
 def test_the_camera_stays_on_a_flickering_newcomer_with_look_keep_misses(keep):
-    """bellotto_cluttered_office, in small: past look_max_s a newcomer far from where the
+    """bellotto_cluttered_office, in small: past search.max_s a newcomer far from where the
     target should be is seen only every other scan (half hidden among shelves). With
-    look_keep_misses 0 each miss sends the camera back to the point, and it swings to and fro;
+    search.keep_misses 0 each miss sends the camera back to the point, and it swings to and fro;
     with 2 it keeps looking at the newcomer."""
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_keep_misses=keep
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45, keep_misses=keep)
     )
-    target, k = _walk_then_hide(trk, 20)  # lost, past look_max_s
+    target, k = _walk_then_hide(trk, 20)  # lost, past search.max_s
     looks = []
     for j in range(k, k + 16):
         still_robot(trk, j * SCAN_NS)
         target, _ = trk.step(cands(j * SCAN_NS, (1.0, -1.5)) if j % 2 else cands(j * SCAN_NS))
         looks.append(target.look_track_id)
-    on = [i >= 0 for i in looks[3:12]]  # from its first look for look_dwell_s (1 s)
+    on = [i >= 0 for i in looks[3:12]]  # from its first look for search.dwell_s (1 s)
     assert target.status == "lost"
     if keep:
         assert all(on), str(looks)
@@ -802,13 +818,19 @@ def test_the_camera_stays_on_a_flickering_newcomer_with_look_keep_misses(keep):
 
 @pytest.mark.parametrize("new_first", [False, True])
 def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
-    """look_new_first: past look_max_s, while the camera dwells on where the target should be
+    """search.new_first: past search.max_s, while the camera dwells on where the target should be
     between rounds of newcomers, someone new appearing is looked at at once (the dwell is for
     looking again at the same people)."""
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_dwell_s=1.0,
-        look_new_first=new_first, look_turn_deg_s=None,  # the dwell from the look (timings)
-    )  # fmt: skip
+        search=SearchSettings(
+            gate_m=0.5,
+            max_s=1.0,
+            wide_max_distance=0.45,
+            dwell_s=1.0,
+            new_first=new_first,
+            turn_deg_s=None,
+        )
+    )
     target, k = _walk_then_hide(trk, 20)
     first = (1.0, -1.5)
     looks = []
@@ -830,15 +852,16 @@ def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
 
 
 def test_past_look_max_s_the_camera_stays_on_the_point_and_anyone_accepted_near_it_is_taken():
-    """Past look_max_s the camera looks at where the lost target should be (about (2, 2.3)),
-    not at someone walking within look_wide_gate_m of it at another bearing; someone vision
+    """Past search.max_s the camera looks at where the lost target should be (about (2, 2.3)),
+    not at someone walking within search.wide_gate_m of it at another bearing; someone vision
     accepts near the point is re-taken on an ordinary acceptance."""
     # a walker ~1.2 m from the point, ~20 deg from it
     target, looks = _looks_past_look_max_s((2.8, 1.3), 0.06)
     assert target.status == "lost"
     assert max(looks[3:]) < 0
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, laser_reacquire_m=0.0
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45),
+        identity=IdentitySettings(laser_reacquire_m=0.0),
     )
     target, k = _walk_then_hide(trk, 20)
     stander = (2.2, 1.4)  # 0.5 m from the point, standing; vision accepts it at 0.6
@@ -853,17 +876,17 @@ def test_past_look_max_s_the_camera_stays_on_the_point_and_anyone_accepted_near_
 
 
 def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_as_before():
-    """look_wide_max_distance: within look_wide_gate_m of where the lost target should be
+    """search.wide_max_distance: within search.wide_gate_m of where the lost target should be
     (here about (2, 1.9)) anyone vision accepts is re-taken, as without the setting; a person
     tracked since before the loss is not looked at."""
-    trk = following_at_two(look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45)
+    trk = following_at_two(search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45))
     old = (1.0, -1.5)  # walking since before the loss
     for k in range(1, 16):
         still_robot(trk, k * SCAN_NS)
         trk.step(cands(k * SCAN_NS, (2.0, 0.06 * k), (old[0] + 0.06 * k, old[1])))
         trk.add_verification(verification(k * SCAN_NS, [(2.0, 0.06 * k)], chosen=0))
     looks = []
-    for k in range(16, 46):  # hidden, then lost; past look_max_s
+    for k in range(16, 46):  # hidden, then lost; past search.max_s
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (old[0] + 0.06 * k, old[1])))
         looks.append(target.look_track_id)
@@ -880,7 +903,10 @@ def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_
 
 def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
     # (vision judges nobody here: no laser-only re-acquisition of the still one meanwhile)
-    trk = following_at_two(look_while_lost=True, look_dwell_s=0.5, laser_reacquire_m=0.0)
+    trk = following_at_two(
+        search=SearchSettings(enabled=True, dwell_s=0.5),
+        identity=IdentitySettings(laser_reacquire_m=0.0),
+    )
     for k in range(1, 11):
         still_robot(trk, k * SCAN_NS)
         trk.step(cands(k * SCAN_NS))
@@ -901,8 +927,12 @@ def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
 
 
 def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
-    # whoever is there, walking or not (laser_reacquire_min_speed_mps 0; default: walkers)
-    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.0))
+    # whoever is there, walking or not (identity.laser_reacquire_min_speed_mps 0; default: walkers)
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest", identity=IdentitySettings(laser_reacquire_min_speed_mps=0.0)
+        )
+    )
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -913,9 +943,9 @@ def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
 
 
 def test_without_vision_only_a_walker_is_retaken_when_asked():
-    """laser_reacquire_min_speed_mps: where the target vanished, a still thing (clutter) is
+    """identity.laser_reacquire_min_speed_mps: where the target vanished, a still thing (clutter) is
     not taken for it; a person walking there is, once the tracker has seen them move."""
-    trk = Tracker(TrackerSettings(acquire="nearest"))  # laser_reacquire_min_speed_mps 0.25
+    trk = Tracker(TrackerSettings(acquire="nearest"))  # identity.laser_reacquire_min_speed_mps 0.25
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -932,11 +962,14 @@ def test_without_vision_only_a_walker_is_retaken_when_asked():
 
 @pytest.mark.parametrize("max_s, retaken", [(None, True), (3.0, True), (1.0, False)])
 def test_without_vision_a_lost_target_is_retaken_only_soon_after_the_loss(max_s, retaken):
-    """laser_reacquire_max_s: 2.5 s after the loss, someone passing where the target was lost
-    is taken for it only when the window is longer than that."""
+    """identity.laser_reacquire_max_s: 2.5 s after the loss, someone passing where the target was
+    lost is taken for it only when the window is longer than that."""
     trk = Tracker(
         TrackerSettings(
-            acquire="nearest", laser_reacquire_min_speed_mps=0.0, laser_reacquire_max_s=max_s
+            acquire="nearest",
+            identity=IdentitySettings(
+                laser_reacquire_min_speed_mps=0.0, laser_reacquire_max_s=max_s
+            ),
         )
     )
     for k in range(12):
@@ -1038,9 +1071,9 @@ def rejected_every_scan(
 @pytest.mark.parametrize("reject_votes", [1, 2, 3])
 def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     """Following someone vision says is not the target (e.g. after a crossing swapped the
-    tracks): after reject_votes rejections the target is dropped and the robot stops. Vision
-    answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
-    settings = TrackerSettings(reject_votes=reject_votes, rollback=False)
+    tracks): after identity.reject_votes rejections the target is dropped and the robot stops.
+    Vision answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
+    settings = TrackerSettings(identity=IdentitySettings(reject_votes=reject_votes, rollback=False))
     trk, target, statuses = rejected_every_scan(settings, (2.0, 0.0), 1.2, 6)
     assert target.status == "tracking"
     # the rejections of scans 1..R are applied at steps 2..R+1
@@ -1059,11 +1092,13 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
 
 @pytest.mark.parametrize(("reject_min_range_m", "dropped"), [(0.0, True), (0.7, False)])
 def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_range_m, dropped):
-    """reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
-    rejections then count for nothing (0: every rejection counts; reject_hysteresis off here,
-    which would also let 0.84 pass for a target surely held)."""
+    """identity.reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
+    rejections then count for nothing (0: every rejection counts; identity.reject_hysteresis off
+    here, which would also let 0.84 pass for a target surely held)."""
     settings = TrackerSettings(
-        reject_min_range_m=reject_min_range_m, rollback=False, reject_hysteresis=0.0
+        identity=IdentitySettings(
+            reject_min_range_m=reject_min_range_m, rollback=False, reject_hysteresis=0.0
+        )
     )
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 5)
     assert ("lost" in statuses) == dropped
@@ -1075,11 +1110,13 @@ def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_ra
     [((), (), False), (((0.5, 0.7),), (), True), ((), (1,), True), (((2.5, 0.1),), (), False)],
 )
 def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others, hidden, dropped):
-    """near_guard_m: a near rejection counts for nothing only while the target took a
+    """identity.near_guard_m: a near rejection counts for nothing only while the target took a
     candidate on every scan since vision accepted it and nobody came within the guard. A
     target that passed someone near it, or was hidden (a passer-by may have appeared where it
     was), is judged as usual; someone farther than the guard changes nothing."""
-    settings = TrackerSettings(reject_min_range_m=0.7, near_guard_m=1.0, rollback=False)
+    settings = TrackerSettings(
+        identity=IdentitySettings(reject_min_range_m=0.7, near_guard_m=1.0, rollback=False)
+    )
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 6, others, hidden)
     assert ("lost" in statuses) == dropped
     assert (trk.identity.rejections_near > 0) != dropped
@@ -1093,11 +1130,13 @@ def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others
 def test_rejections_just_above_the_threshold_keep_a_target_surely_held(
     hysteresis, distance, others, dropped
 ):
-    """reject_hysteresis: vision judges the target 0.85 against 0.8 again and again
+    """identity.reject_hysteresis: vision judges the target 0.85 against 0.8 again and again
     (door_corner seed 3). While the track is surely the one vision last accepted, such a
     rejection counts for nothing with a 0.1 hysteresis; 0.95 still counts, and so does 0.85
-    once someone came within near_guard_m of it."""
-    settings = TrackerSettings(reject_hysteresis=hysteresis, rollback=False)
+    once someone came within identity.near_guard_m of it."""
+    settings = TrackerSettings(
+        identity=IdentitySettings(reject_hysteresis=hysteresis, rollback=False)
+    )
     _, _, statuses = rejected_every_scan(settings, (2.0, 0.0), distance, 6, others)
     assert ("lost" in statuses) == dropped
 
@@ -1107,7 +1146,7 @@ def test_a_pair_of_two_peoples_legs_is_split_between_their_tracks(split):
     """Two people 0.5 m apart, each with a track; one leg of each is hidden and the detector
     pairs the two visible ones (0.44 m apart) into one candidate between them. Split, each
     track takes its own leg; unsplit, one track is pulled to the middle."""
-    trk = Tracker(TrackerSettings(split_pair_m=split))
+    trk = Tracker(TrackerSettings(association=AssociationSettings(split_pair_m=split)))
     trk.set_vision_alive(True)
     for k in range(4):
         still_robot(trk, k * SCAN_NS)
@@ -1170,10 +1209,10 @@ def judged_at_two(stamp_ns, points):
 def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(rollback):
     """The target stands at (2, 0); a passer-by walks across in front of it and hides it for
     three scans. Their candidate lies inside the target's gate, so the target takes it once;
-    vision (one scan late) rejects that candidate. With rollback the target returns to where
-    it was and coasts while a new track follows the passer-by; without, the estimate is
+    vision (one scan late) rejects that candidate. With identity.rollback the target returns to
+    where it was and coasts while a new track follows the passer-by; without, the estimate is
     dragged onto the passer-by."""
-    trk = following_at_two(rollback=rollback)
+    trk = following_at_two(identity=IdentitySettings(rollback=rollback))
     # scans 1..2 the target alone; 3..5 only the passer-by (target hidden); 6.. both
     passer = {3: (1.75, 0.2), 4: (1.7, 0.05), 5: (1.68, -0.1), 6: (1.66, -0.3), 7: (1.65, -0.5)}
     target_id = None
@@ -1219,7 +1258,7 @@ def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
 
 
 def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
-    """Its look changed (turning round), its position did not jump: no rollback."""
+    """Its look changed (turning round), its position did not jump: no identity.rollback."""
     trk = following_at_two()
     for k, d in enumerate([0.3, 1.2, 0.3, 0.3], start=1):
         still_robot(trk, k * SCAN_NS)
@@ -1231,8 +1270,8 @@ def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
 
 def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
     """The target's candidate jumps 0.25 m (a long step, or a leg paired anew) and vision
-    wrongly rejects it: the rollback splits the track; the next verification that accepts the
-    person repairs the split. The target is never lost."""
+    wrongly rejects it: the identity.rollback splits the track; the next verification that accepts
+    the person repairs the split. The target is never lost."""
     trk = following_at_two()
     statuses = []
     xs = [2.0, 2.25, 2.25, 2.25, 2.25, 2.25, 2.25]
@@ -1248,7 +1287,7 @@ def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
 
 
 def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
-    trk = following_at_two(reject_votes=2, rollback=False)
+    trk = following_at_two(identity=IdentitySettings(reject_votes=2, rollback=False))
     for k, d in enumerate([1.2, 0.3, 1.2, 0.3, 1.2, 0.3], start=1):  # never two in a row
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
@@ -1400,10 +1439,10 @@ def test_occluder_edge_wraps_round_a_full_circle_horizon():
 
 @pytest.mark.parametrize("edge", [True, False])
 def test_while_lost_behind_a_pillar_the_camera_looks_where_the_target_comes_out(edge):
-    """look_occluder_edge: the target walks left behind a pillar 1 m ahead (bearings -5..50
+    """search.occluder_edge: the target walks left behind a pillar 1 m ahead (bearings -5..50
     deg) and is lost; with nobody to look at, the camera looks past the pillar's left edge,
     not at the hidden point where the target should be. Off: at that point."""
-    trk = following_at_two(look_gate_m=0.5, look_occluder_edge=edge)
+    trk = following_at_two(search=SearchSettings(gate_m=0.5, occluder_edge=edge))
     pillar = horizon_of([(-5, 50, 1.0)])
     for k in range(1, 16):
         still_robot(trk, k * SCAN_NS)
@@ -1462,10 +1501,14 @@ def test_every_miss_counts_as_the_thesis_says(what):
 
 
 def test_without_vision_nothing_at_the_robot_itself_is_retaken():
-    """laser_reacquire_min_range_m: a target lost 0.4 m ahead is not re-taken by the laser
+    """identity.laser_reacquire_min_range_m: a target lost 0.4 m ahead is not re-taken by the laser
     from a track 0.2 m from the laser (the robot's body, or what it drove up to); a person
     0.45 m away is."""
-    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.0))
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest", identity=IdentitySettings(laser_reacquire_min_speed_mps=0.0)
+        )
+    )
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (0.4, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -1481,18 +1524,20 @@ def test_without_vision_nothing_at_the_robot_itself_is_retaken():
 @pytest.mark.parametrize(
     ("settings", "beside", "taken"),
     [
-        ({"front_margin_m": 0.2}, True, False),
-        ({"front_margin_m": None}, True, True),
+        ({"association": AssociationSettings(front_margin_m=0.2)}, True, False),
+        ({"association": AssociationSettings(front_margin_m=None)}, True, True),
         ({}, False, True),
     ],
 )
 def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(settings, beside, taken):
-    """front_margin_m: the target stands 2 m ahead, a passer-by's track beside it; the
+    """association.front_margin_m: the target stands 2 m ahead, a passer-by's track beside it; the
     passer-by crosses 0.3 m in front of the target, on its bearing, hiding it. The target's
     track (gate 0.4 m, the thesis's, as in that run) coasts instead of taking the passer-by,
     and takes the target back when it shows again. Off: it takes the passer-by. A passer-by
     no other track holds (beside=False) is taken: alone, it may be the target coming closer."""
-    trk = following_at_two(reject_votes=0, estimator_settings={"gate_m": 0.4}, **settings)
+    trk = following_at_two(
+        estimator_settings={"gate_m": 0.4}, **settings, identity=IdentitySettings(reject_votes=0)
+    )
     others = [(1.75, 0.35)] if beside else []
     for k in range(1, 5):
         still_robot(trk, k * SCAN_NS)
@@ -1511,8 +1556,8 @@ def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(settings, be
 
 
 def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
-    """front_margin_m: alone, a candidate in front of the target's (lagging) estimate is the
-    target coming closer -- 1.5 m/s straight at the robot is taken every scan."""
+    """association.front_margin_m: alone, a candidate in front of the target's (lagging) estimate
+    is the target coming closer -- 1.5 m/s straight at the robot is taken every scan."""
     trk = Tracker(TrackerSettings(acquire="nearest"))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
@@ -1522,8 +1567,8 @@ def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
 
 
 def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan():
-    """front_margin_m: a target walking at 1.5 m/s straight at the robot, missed for one scan,
-    is taken back at once although it is then 0.25 m nearer than its coasting estimate (no
+    """association.front_margin_m: a target walking at 1.5 m/s straight at the robot, missed for
+    one scan, is taken back at once although it is then 0.25 m nearer than its coasting estimate (no
     other track holds it, so the candidate is not blocked)."""
     trk = Tracker(TrackerSettings(acquire="nearest"))
     for k in range(12):
@@ -1618,18 +1663,18 @@ def test_a_passer_by_0_38_m_from_the_hidden_target_is_not_taken_by_its_track(
 
 @pytest.mark.parametrize(("within", "reach"), [(True, 3.5), (False, 3.5), (True, None)])
 def test_a_target_that_walked_out_of_reach_is_looked_for_where_it_comes_back(within, reach):
-    """look_within_reach (ristic_wall_corridor, seed 1, in small): the target walks away at
+    """search.within_reach (ristic_wall_corridor, seed 1, in small): the target walks away at
     0.5 m/s and is lost at 3.9 m (beyond the detector's reach, 3.5 m); its
     predicted point walks on to ~4.4 m. It comes back 5 s later at 3.06 m, accepted by vision
     at 0.65 against 0.8. Kept within the reach the point is 0.8 m from it: re-taken on that
     ordinary acceptance; off, or with candidates that give no reach, 1.6 m away (past
-    look_wide_gate_m): only a close match (0.45) would re-take it."""
+    search.wide_gate_m): only a close match (0.45) would re-take it."""
 
     def seen(stamp_ns, *xy):
         return msgspec.structs.replace(cands(stamp_ns, *xy), reach_m=reach)
 
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_within_reach=within
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45, within_reach=within)
     )
     for k in range(1, 16):
         x = 2.0 + 0.06 * k
