@@ -32,7 +32,7 @@ from scipy.optimize import linear_sum_assignment
 
 from followbot.schemas import PersonCandidates
 
-from .estimators import wrap_angle
+from .estimators import EstimatorBase, wrap_angle
 from .lifecycle import Track
 from .settings import TrackerSettings
 
@@ -118,7 +118,7 @@ class Associator:
 
     def __init__(self, settings: TrackerSettings, estimator_class: type) -> None:
         self.settings = settings
-        self._cost_all = getattr(estimator_class, "cost_all", None)  # batch gating, if any
+        self._cls = estimator_class
         self._assign = ASSIGNMENTS[settings.association.assignment]
 
     def associate(
@@ -149,15 +149,10 @@ class Associator:
 
     def _gated(self, tracks: dict[int, Track], ids: list[int], points: np.ndarray) -> np.ndarray:
         """(tracks, points) distances, infinite beyond each track's gate."""
-        if self._cost_all is not None and len(ids) > 1:
-            ts = [tracks[tid] for tid in ids]
-            return self._cost_all([t.estimator for t in ts], points, [t.misses for t in ts])
-        cost_p = np.empty((len(ids), len(points)))
-        for r, tid in enumerate(ids):
-            t = tracks[tid]
-            d = t.estimator.distance(points, t.misses)
-            cost_p[r] = np.where(d <= t.estimator.gate(t.misses), d, np.inf)
-        return cost_p
+        ts = [tracks[tid] for tid in ids]
+        # one track: its own distance(), as the batch step of a class may compute it otherwise
+        cost_all = self._cls.cost_all if len(ts) > 1 else EstimatorBase.cost_all
+        return cost_all([t.estimator for t in ts], points, [t.misses for t in ts])
 
     def _block_in_front(self, cost: np.ndarray, r: int, target: Track, a: Association) -> None:
         """Someone passing in front of the target hides it: a unit on its bearing, at least

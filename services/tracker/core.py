@@ -81,7 +81,7 @@ class Tracker:
     def __init__(self, settings: TrackerSettings | None = None) -> None:
         self.settings = s = settings or TrackerSettings()
         self._make = estimator_factory(s.estimator, s.estimator_settings)
-        self._cls = self._make.estimator_class  # its optional batch steps (update_all, ...)
+        self._cls = self._make.estimator_class  # its batch steps (update_all, ...)
         self.estimator_name = s.estimator
         self.odometry = OdometryBuffer(
             max_extrapolation_ns=int(s.max_odometry_extrapolation_s * _NS)
@@ -244,12 +244,8 @@ class Tracker:
         scales = None
         if s.association.one_leg_noise_scale != 1.0:
             scales = np.where(lone, s.association.one_leg_noise_scale, 1.0)
-        update_all = getattr(self._cls, "update_all", None)
-        if update_all is not None and len(updated) > 1:
-            update_all([t.estimator for t in updated], np.array(zs), scales)
-        else:
-            for i, (t, zi) in enumerate(zip(updated, zs, strict=True)):
-                t.estimator.update(zi, 1.0 if scales is None else float(scales[i]))
+        if updated:
+            self._cls.update_all([t.estimator for t in updated], np.array(zs), scales)
         if s.lone_leg_output_m:
             for i, t in enumerate(updated):
                 if t.id == self.target_id:
@@ -275,9 +271,7 @@ class Tracker:
         rest, self._rest = self._rest, None
         if rest is None:
             raise RuntimeError("step_rest() without a step_target() before it")
-        prepare_all = getattr(self._cls, "prepare_all", None)  # resampling, draws ahead
-        if prepare_all is not None:
-            prepare_all([t.estimator for t in self.tracks.values()])
+        self._cls.prepare_all([t.estimator for t in self.tracks.values()])  # resampling, ...
         for t, seen in rest.learn:
             self._tracks.learn_velocity(t, rest.stamp, rest.pose, seen)
         if rest.scan is not None:

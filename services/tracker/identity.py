@@ -32,7 +32,6 @@ without vision, by the laser near where it was lost (``laser_reacquire_*``).
 
 from __future__ import annotations
 
-import copy
 import math
 from collections import OrderedDict, deque
 from typing import Any
@@ -141,9 +140,7 @@ class Identity:
         update), for a later rollback; None without rollback or target."""
         if not self.settings.identity.rollback or self.target_id < 0:
             return None
-        est = self._tracks.by_id[self.target_id].estimator
-        snapshot = getattr(est, "snapshot", None)
-        return self.target_id, snapshot() if snapshot else copy.deepcopy(est)
+        return self.target_id, self._tracks.by_id[self.target_id].estimator.snapshot()
 
     def vision_flags(self, stamp: int) -> list[str]:
         """``no_vision`` (vision_verify absent) or ``vision_stale`` (no judgement for

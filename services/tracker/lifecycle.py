@@ -121,21 +121,16 @@ class Tracks:
         """Ego-motion (when the frame change is known), the estimators' prediction, then
         coasting at the people's recent velocity."""
         tracks = list(self.by_id.values())
-        motion_all = getattr(self._make.estimator_class, "motion_all", None)
-        if motion_all is not None and len(tracks) > 1:
-            motion_all([t.estimator for t in tracks], rotation, translation, dt)
-        else:
-            for t in tracks:
-                if rotation is not None:
-                    t.estimator.ego_motion(rotation, translation)
-                t.estimator.predict(dt, t.misses)
+        if tracks:
+            estimators, misses = [t.estimator for t in tracks], [t.misses for t in tracks]
+            self._make.estimator_class.motion_all(estimators, rotation, translation, dt, misses)
 
     def coast(self, dt: float) -> None:
         """Tracks that missed their candidate last scan move on at their coasting velocity."""
         if self.settings.coast_velocity_s <= 0:
             return
         for t in self.by_id.values():
-            if t.misses > 0 and t.steps and getattr(t.estimator, "coasts_in_place", False):
+            if t.misses > 0 and t.steps and t.estimator.coasts_in_place:
                 t.estimator.ego_motion(_I2, self.velocity(t, self._now.pose) * dt)
 
     def count(self, ids: list[int], matched: dict[int, int], stamp: int) -> list[tuple[Track, int]]:

@@ -120,14 +120,15 @@ def shift_after_update(t: Track, z: np.ndarray, lone: bool, scale: float, b: flo
     Had the measurement lain ``b`` farther out along its bearing u, the update would have
     moved the estimate by ``moved`` (the estimator's ``mean_if``), that is k b along u: so the
     update keeps 1 - k of the earlier shift and, for a ``lone`` leg, adds ``moved``. An
-    estimator without ``mean_if`` keeps no shift."""
-    mean_if = getattr(t.estimator, "mean_if", None)
+    estimator whose ``mean_if`` cannot tell keeps no shift."""
     r = float(np.hypot(*z))
-    if mean_if is None or not r > 0:
+    if not r > 0:
         return
     u = z / r
-    moved = mean_if(z + b * u, scale)[:2]
-    moved -= t.estimator.mean[:2]
+    moved = t.estimator.mean_if(z + b * u, scale)
+    if moved is None:
+        return
+    moved = moved[:2] - t.estimator.mean[:2]
     if not np.isfinite(moved).all():
         t.shift = np.zeros(2)
         return

@@ -46,6 +46,8 @@ from typing import Annotated, Literal
 import msgspec
 import numpy as np
 
+from .base import EstimatorBase
+
 __all__ = [
     "ParticleEstimator",
     "ParticleSettings",
@@ -130,7 +132,7 @@ def _gather_base(tracks: int, m: int) -> np.ndarray:
     return base
 
 
-class ParticleEstimator:
+class ParticleEstimator(EstimatorBase):
     """One person's particle cloud (thesis 3.6.2). ``rng`` must be a seeded Generator."""
 
     name = "particle"
@@ -348,8 +350,10 @@ class ParticleEstimator:
         rotation: np.ndarray | None,
         translation: np.ndarray | None,
         dt_s: float,
+        misses: Sequence[int] = (),
     ) -> None:
-        """:meth:`ego_motion` (when ``rotation`` is given) then :meth:`predict`, for all."""
+        """:meth:`ego_motion` (when ``rotation`` is given) then :meth:`predict`, for all (the
+        prediction does not depend on ``misses``)."""
         if not cls._batchable(estimators):
             for e in estimators:
                 if rotation is not None:
