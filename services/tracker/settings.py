@@ -119,7 +119,9 @@ class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     re-acquisition without vision (identity.py)."""
 
     acquire_range_m: Annotated[float, msgspec.Meta(gt=0)] = 3.0
+    """``acquire: nearest``: the farthest a first target may be."""
     acquire_bearing_deg: Annotated[float, msgspec.Meta(gt=0, le=180)] = 45.0
+    """``acquire: nearest``: the widest bearing, either side of straight ahead."""
     model_match_m: Annotated[float, msgspec.Meta(gt=0)] = 0.5
     """A target model's position takes the nearest track within this distance, else a new one."""
     switch_votes: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
@@ -187,7 +189,9 @@ class SearchSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     False: the camera stays where the target was lost (the thesis).
     docs/tracker_log.md: a target behind a pillar re-acquired in 0.0-1.56 s instead of ~21 s."""
     dwell_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    """How long the camera stays on one person vision has not judged yet."""
     rejections: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    """A person vision rejected this many times since the loss is not looked at again."""
     min_range_m: Annotated[float, msgspec.Meta(ge=0)] = 0.3
     """Nearer than this the camera is not turned to a person (it would see too little of them
     to judge). docs/tracker_log.md: 0.3 re-takes a target coming back beside the stopped robot
@@ -203,12 +207,14 @@ class SearchSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     it and chooses another track is a switch: that track is taken wherever it is.) None: look
     at every track in turn, for as long as the target is lost."""
     gate_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    """How fast the gate grows (a walker's pace)."""
     gate_since_seen: bool = True
     """The gate grows with the time since the target was last *seen* (its last laser update),
     not since the loss was declared, which comes a miss budget (~1 s) later while a hidden
     person walks on. Vision re-takes someone in that outer ring (outside the radius grown
     since the loss) only on a close match, wide_max_distance. False: since the loss."""
     predict_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
+    """How long the lost target is carried on at its coasting velocity."""
     within_reach: bool = True
     """Where the lost target should be is kept within the detector's reach
     (perception/candidates ``reach_m``): a target who walked out of reach is looked for, and
@@ -294,6 +300,8 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     history_scans: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 64
     """Scans remembered for late verifications and rollbacks."""
     max_odometry_extrapolation_s: Annotated[float, msgspec.Meta(ge=0)] = 0.1
+    """A scan newer than the newest odometry by at most this takes the pose extrapolated
+    along the last twist; later, it goes uncompensated (flag ``no_odometry``)."""
     default_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
     """Time step of the first scan (thesis 4.1.1: 120 ms)."""
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
