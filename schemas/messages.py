@@ -334,7 +334,8 @@ class PersonCandidates(Message, tag="person_candidates", kw_only=True):
     candidates: Annotated[list[Candidate], _Items] = []
     horizon: Horizon | None = None
     """The scan's nearest returns by bearing (laser detectors; None: not known). Lets the
-    tracker keep a person hidden behind something nearer (tracker ``occlusion_max_s``)."""
+    tracker tell a lost target hidden behind something nearer, and look where it will come
+    out (tracker ``look_occluder_edge``)."""
     reach_m: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
     """How far from the laser the detector can find anyone (metres): its range clip (the
     thesis's 3.5 m, 4.3.1) or the scan's maximum range, whichever is nearer (laser detectors;
@@ -457,9 +458,8 @@ class TrackState(Message, tag="track_state", kw_only=True):
     """Degradations in force, e.g. no_odometry, no_vision."""
     estimator: Name = ""
     look_track_id: int = -1
-    """While ``lost`` (or ``coasting`` with a target hidden past the miss budget, tracker
-    setting occlusion_look): the tracked person (tracking/people id) the camera should look at
-    so vision can tell whether it is the target; -1: none. The controller pans there."""
+    """While ``lost``: the tracked person (tracking/people id) the camera should look at so
+    vision can tell whether it is the target; -1: none. The controller pans there."""
     look_x_m: Finite = 0.0
     look_y_m: Finite = 0.0
     """Where that person is (base frame of the scan's stamp); with ``look_track_id`` -1, a

@@ -46,6 +46,17 @@ def test_bad_settings_key_is_named(tmp_path):
     assert "unknown field `beamz`" in out.stderr and str(cfg) in out.stderr
 
 
+def test_a_removed_tracker_setting_is_named_as_removed(tmp_path):
+    """A settings file kept from an older version, naming an experiment that was taken out,
+    stops the service before it starts, with the key and why."""
+    cfg = tmp_path / "tracker.yaml"
+    cfg.write_text("max_misses: 8\nocclusion_max_s: 3.0\n")
+    out = followbot("run", "tracker", "--config", str(cfg), "--print-settings")
+    assert out.returncode == 2
+    assert f"{cfg}: occlusion_max_s was removed" in out.stderr
+    assert "docs/tracker_log.md" in out.stderr
+
+
 def test_print_settings_shows_file_and_overrides(tmp_path):
     cfg = tmp_path / "s.yaml"
     cfg.write_text("scan_rate_hz: 10\n")

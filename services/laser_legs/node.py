@@ -17,15 +17,14 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import msgspec
-import numpy as np
 
-from followbot.schemas import LaserScan, PersonCandidates
+from followbot.schemas import LaserScan
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
-from followbot.services.runtime.settings import NodeSettings, SettingsError
+from followbot.services.runtime.settings import NodeSettings, SettingsError, removed
 
 from .core import LegDetector, detector_clip_m, empty_candidates, horizon, scan_reach_m
 from .detectors import REGISTRY, make_detector
@@ -36,25 +35,20 @@ __all__ = ["LaserLegsSettings", "build_detector", "check", "main", "setup"]
 
 
 class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
+    retired_settings: ClassVar[dict[str, str]] = {
+        "detector_settings_while_lost": removed(
+            "a second detector while the target is lost, measured with the tracker's removed "
+            "look_far_walking_m and left off, see docs/tracker_log.md"
+        ),
+        "while_lost_new_near_look_m": removed(
+            "it only applied with detector_settings_while_lost, also removed"
+        ),
+    }
+
     detector: str = "thesis"
     """Leg detector by name (entry points of followbot.detectors): thesis, arc, bellotto, ..."""
     detector_settings: dict[str, Any] = {}
     """Overrides of the detector's own settings, validated by its settings Struct."""
-    detector_settings_while_lost: dict[str, Any] | None = None
-    """Beyond the thesis: overrides, on top of detector_settings, used while the tracker
-    reports the target lost (tracking/target ``lost``, at most prediction_max_age_s before the
-    scan), e.g. ``{clip_range_m: 5.0}`` for thesis -- a target who walked on while hidden is
-    seen again beyond the thesis's 3.5 m (ristic_wall_corridor seed 2: 2 s in view of both
-    sensors at 3.6-4.6 m, never re-taken). Both detectors see every scan (so a detector that
-    keeps a history keeps all of it); the lost one's candidates are published while lost.
-    Detection costs twice as much. null: off."""
-    while_lost_new_near_look_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
-    """With detector_settings_while_lost, beyond the thesis: on a lost scan, a candidate of
-    the lost detector that the ordinary detector did not find too (none of its candidates
-    within 0.1 m) is published only within this of the point the tracker looks at for its
-    target (tracking/target ``look_x_m``/``look_y_m``, base frame, the laser pose applied;
-    none named: not at all). E.g. with ``{edge_slivers: true}``: a leg half hidden beside the
-    pillar the target went behind, not beside everyone else. null: all of them."""
     use_target_prediction: bool = True
     """Criterion 3: gate legs on the tracked target's predicted position (thesis 4.3.2)."""
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
@@ -83,54 +77,17 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
         # checked while the settings load, so a bad detector or key fails before any network
         # is opened (exit code 2, the message naming the key)
         build_detector(self, check_only=True)
-        if self.detector_settings_while_lost is not None:
-            build_detector(self, check_only=True, while_lost=True)
 
 
-SAME_CANDIDATE_M = 0.1
-"""while_lost_new_near_look_m: a lost detector's candidate this near one of the ordinary
-detector's is that one."""
-
-
-def only_near_look(
-    lost: PersonCandidates,
-    ordinary: PersonCandidates,
-    look: tuple[float, float] | None,
-    near_m: float,
-) -> PersonCandidates:
-    """``lost`` without its candidates that ``ordinary`` lacks (none of its within
-    SAME_CANDIDATE_M) and that lie farther than ``near_m`` from ``look``, the point the
-    tracker looks at in the scan's frame (TargetPredictor.look_point; None: every such
-    candidate is dropped)."""
-    seen = np.array([(c.x_m, c.y_m) for c in ordinary.candidates]).reshape(-1, 2)
-    keep = []
-    for cand in lost.candidates:
-        found = seen.shape[0] > 0 and bool(
-            np.min(np.hypot(seen[:, 0] - cand.x_m, seen[:, 1] - cand.y_m)) <= SAME_CANDIDATE_M
-        )
-        near = look is not None and math.hypot(cand.x_m - look[0], cand.y_m - look[1]) <= near_m
-        if found or near:
-            keep.append(cand)
-    if len(keep) == len(lost.candidates):
-        return lost
-    return msgspec.structs.replace(lost, candidates=keep)
-
-
-def build_detector(
-    settings: LaserLegsSettings, *, check_only: bool = False, while_lost: bool = False
-) -> LegDetector | None:
+def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> LegDetector | None:
     """The configured detector; a bad name or setting is a SettingsError (a ValueError) naming
-    it. ``check_only`` validates the detector's settings without building the detector;
-    ``while_lost``: the detector of detector_settings_while_lost (on top of detector_settings)."""
+    it. ``check_only`` validates the detector's settings without building the detector."""
     try:
         cls = REGISTRY.load(settings.detector)
     except LookupError as exc:
         raise SettingsError(f"detector: {exc}") from None
     overrides = dict(settings.detector_settings)
     key = "detector_settings"
-    if while_lost:
-        overrides.update(settings.detector_settings_while_lost or {})
-        key = "detector_settings_while_lost"
     try:
         if check_only:
             msgspec.convert(overrides, cls.settings_type)
@@ -162,13 +119,9 @@ def check(settings: LaserLegsSettings) -> None:
 def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     detector = build_detector(settings)
     assert detector is not None
-    lost_detector = None
-    if settings.detector_settings_while_lost is not None:
-        lost_detector = build_detector(settings, while_lost=True)
-    # reach_m: the clip of each detector (fixed), met with each scan's range_max_m
+    # reach_m: the detector's clip (fixed), met with each scan's range_max_m
     clip_m = detector_clip_m(detector)
-    lost_clip_m = None if lost_detector is None else detector_clip_m(lost_detector)
-    follows_target = settings.use_target_prediction or lost_detector is not None
+    follows_target = settings.use_target_prediction
     out = node.publisher("perception/candidates")
     predictor = TargetPredictor(
         max_age_s=settings.prediction_max_age_s,
@@ -180,9 +133,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     bin_rad = None if settings.horizon_bin_deg is None else math.radians(settings.horizon_bin_deg)
     held: deque[tuple[LaserScan, float]] = deque()
     stamps = {"scan": -1, "target": -1, "odom": -1}
-    counts = dict.fromkeys(
-        ("waits", "wait_timeouts", "horizon_errors", "lost_scans", "lost_detector_errors"), 0
-    )
+    counts = dict.fromkeys(("waits", "wait_timeouts", "horizon_errors"), 0)
     target_wait = settings.lockstep_target_wait_s if follows_target else 0.0
     odom_wait = settings.lockstep_odometry_wait_s if settings.use_target_prediction else 0.0
     wait_s = max(target_wait, odom_wait)
@@ -239,30 +190,13 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             empty = empty_candidates(scan, detector.name)
             out.put(msgspec.structs.replace(empty, horizon=seen, reach_m=reach))
             raise
-        if lost_detector is not None:  # every scan, so its history is whole (settings)
-            try:
-                lost_result = lost_detector.detect(scan, prediction)
-            except Exception:  # the ordinary detector's candidates still go
-                node.log.exception("detector_settings_while_lost failed on scan %d", scan.seq)
-                counts["lost_detector_errors"] += 1
-                lost_result = None
-            if lost_result is not None and predictor.lost(scan):
-                if settings.while_lost_new_near_look_m is not None:
-                    look = predictor.look_point(scan)
-                    near = settings.while_lost_new_near_look_m
-                    lost_result = only_near_look(lost_result, result, look, near)
-                result = lost_result
-                reach = scan_reach_m(lost_clip_m, scan)
-                counts["lost_scans"] += 1
         out.put(msgspec.structs.replace(result, horizon=seen, reach_m=reach))
 
     def restart() -> None:
         """The scans' source restarted with a new clock: start as if new (detectors with a
         history, e.g. a learned background, forget it; held scans and the target go)."""
-        nonlocal detector, lost_detector
+        nonlocal detector
         detector = build_detector(settings)
-        if lost_detector is not None:
-            lost_detector = build_detector(settings, while_lost=True)
         held.clear()
         stamps.update(scan=-1, target=-1, odom=-1)
         predictor.reset()
@@ -301,9 +235,6 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
             f"lockstep_wait_timeouts={counts['wait_timeouts']}",
             f"horizon_errors={counts['horizon_errors']}",
         ]
-        if lost_detector is not None:
-            node.notes.append(f"lost_scans={counts['lost_scans']}")
-            node.notes.append(f"lost_detector_errors={counts['lost_detector_errors']}")
 
     notes()
     node.every(settings.health_period_s, notes, name="notes")

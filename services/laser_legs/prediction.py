@@ -133,11 +133,6 @@ class TargetPredictor:
         """``t`` is stamped at or before ``scan``, at most max_age_s before it."""
         return 0 <= scan.stamp_ns - t.stamp_ns <= self.max_age_ns
 
-    def lost(self, scan: LaserScan) -> bool:
-        """The newest target says ``lost`` and is recent for ``scan`` (as for predict)."""
-        t = self.target
-        return t is not None and t.status == "lost" and self._recent(t, scan)
-
     def _in_scan_frame(
         self, t: TrackState, scan: LaserScan, px: float, py: float
     ) -> tuple[float, float]:
@@ -149,15 +144,6 @@ class TargetPredictor:
             dx, dy = px - lx, py - ly
             px, py = c * dx + s * dy, -s * dx + c * dy
         return px, py
-
-    def look_point(self, scan: LaserScan) -> tuple[float, float] | None:
-        """Where the newest target's tracker looks for it (TrackState ``look_x_m``/``look_y_m``,
-        when it names a point or a track) in ``scan``'s laser frame, or None. As the tracker
-        says it, without ego-motion (a robot that has lost its target stands)."""
-        t = self.target
-        if t is None or not (t.look_track_id >= 0 or (t.look_x_m, t.look_y_m) != (0.0, 0.0)):
-            return None
-        return self._in_scan_frame(t, scan, t.look_x_m, t.look_y_m)
 
     def predict(self, scan: LaserScan) -> Prediction:
         """The target's predicted (x, y) in ``scan``'s frame, or None (then no gating)."""

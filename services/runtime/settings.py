@@ -5,11 +5,17 @@ Every service declares its settings as a msgspec Struct deriving from :class:`No
 ignored). Values come, in increasing priority, from the Struct's defaults, a YAML or JSON file
 (``--config FILE``) and ``--set dotted.key=value`` pairs (the value is parsed as YAML, so
 ``--set zenoh.listen=[tcp/127.0.0.1:7000]`` and ``--set rate_hz=40`` work).
+
+A setting that was removed or renamed stays known: a settings type lists it in its class
+attribute ``retired_settings`` (dotted key -> what to do instead, see :func:`removed` and
+:func:`renamed`), and a file or ``--set`` naming it fails with that message rather than
+msgspec's bare "unknown field".
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
@@ -26,6 +32,8 @@ __all__ = [
     "ZenohSettings",
     "apply_overrides",
     "load_settings",
+    "removed",
+    "renamed",
     "with_node_settings",
 ]
 
@@ -93,17 +101,47 @@ class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
         Keys(self.robot)  # a name that cannot be a key chunk is refused here, with the rule
 
 
+def removed(why: str) -> str:
+    """The ``retired_settings`` entry of a setting that is gone without a replacement."""
+    return f"was removed ({why}); delete it from your settings"
+
+
+def renamed(new_key: str) -> str:
+    """The ``retired_settings`` entry of a setting that now lives at ``new_key`` (dotted)."""
+    return f"was renamed: set {new_key} instead"
+
+
+def _check_retired(settings_type: type, layer: Mapping[str, Any], source: str) -> None:
+    """Refuse a settings layer that names a key ``settings_type`` lists as retired."""
+    table: Mapping[str, str] = getattr(settings_type, "retired_settings", None) or {}
+    for key, note in table.items():
+        node: Any = layer
+        *sections, last = key.split(".")
+        for part in sections:
+            node = node.get(part) if isinstance(node, Mapping) else None
+        if isinstance(node, Mapping) and last in node:
+            raise SettingsError(f"{source}: {key} {note}")
+
+
 def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> type[NodeSettings]:
     """NodeSettings plus every field of ``core``, flat (``--set estimator=ukf``): the settings
-    type of a service whose logic lives in ``core`` (tracker, controller)."""
+    type of a service whose logic lives in ``core`` (tracker, controller); ``core``'s
+    ``retired_settings`` carry over."""
     spec = []
     for f in msgspec.structs.fields(core):
         if f.default is msgspec.NODEFAULT:
             spec.append((f.name, f.type, msgspec.field(default_factory=f.default_factory)))
         else:
             spec.append((f.name, f.type, f.default))
+    retired = {"retired_settings": dict(getattr(core, "retired_settings", None) or {})}
     return msgspec.defstruct(
-        name, spec, bases=(NodeSettings,), kw_only=True, forbid_unknown_fields=True, module=module
+        name,
+        spec,
+        bases=(NodeSettings,),
+        kw_only=True,
+        forbid_unknown_fields=True,
+        module=module,
+        namespace=retired,
     )
 
 
@@ -160,11 +198,15 @@ def load_settings(
         data: dict[str, Any] = msgspec.to_builtins(settings_type())
     except TypeError:  # a settings type with required fields: start from nothing
         data = {}
+    _check_retired(settings_type, dict(base or {}), "settings")
     _merge(data, dict(base or {}))
     source = "settings"
     if config_file is not None:
-        _merge(data, _parse_file(Path(config_file)))
+        layer = _parse_file(Path(config_file))
+        _check_retired(settings_type, layer, str(config_file))
+        _merge(data, layer)
         source = str(config_file)
+    _check_retired(settings_type, apply_overrides({}, list(overrides or [])), "--set")
     apply_overrides(data, list(overrides or []))
     try:
         return msgspec.convert(data, settings_type, strict=False)

@@ -1,4 +1,4 @@
-"""Particle-filter step time against the particle count (issue 6 targets: 150 particles
+"""Particle-filter step time against the particle count (targets: 150 particles
 <= 100 us, 10 000 <= 2 ms; the thesis needed 85 ms for 150 on an 850 MHz Pentium III), then
 the step time of every estimator with its default settings.
 

@@ -1,7 +1,7 @@
 """In-process closed loop: simulator -> leg detector -> tracker -> controller -> simulator.
 
 The same sequence of messages a lock-step run over Zenoh would see, in one process and one
-thread, for tests and figures (issue 6 "Must show"). Vision is a stand-in: ``vision="oracle"``
+thread, for tests and figures. Vision is a stand-in: ``vision="oracle"``
 publishes, for every scan, a Verification choosing the candidate nearest the true target when
 the camera sees it (the tracker is measured, not a verifier); ``vision_lag_scans`` delays it.
 The target model is given at the first scan from the truth (thesis 4.2: model construction
@@ -144,37 +144,45 @@ def run(
                 else:
                     cands = detector.detect(scan)
                 if not records and tgt is not None:
-                    trk.set_target_model(
-                        TargetModel(
-                            stamp_ns=scan.stamp_ns,
-                            model_id=1,
-                            verifier="oracle",
-                            x_m=tgt.robot_x_m,
-                            y_m=tgt.robot_y_m,
-                            rect_width_px=60,
-                            rect_height_px=200,
-                            image_width=320,
-                            image_height=240,
-                        )
-                    )
+                    trk.set_target_model(_oracle_model(scan.stamp_ns, tgt))
                 state, people = trk.step(cands)
                 if vision == "oracle":
                     trk.add_verification(_oracle(cands, truth, fov))
                 if ctl is not None:
                     dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
-                    pts = view = None
-                    if ctl.guard is not None:  # the controller's obstacle guard sees the scan
-                        pts = scan_points(scan, sc.laser.mount_x_m)
-                        view = scan_view(scan, sc.laser.mount_x_m)
-                    cmd = ctl.on_target(state, dt, pts, view)
-                    sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
-                    sim.command_pan(cmd.pan_rad)
+                    _command(sim, ctl, state, dt, scan, sc.laser.mount_x_m)
                 if drive is not None:
                     sim.command_velocity(*drive)  # the base is driven; the camera still pans
                 last_stamp = scan.stamp_ns
                 records.append(_record(truth, state, len(people.tracks)))
                 scan = None
     return records
+
+
+def _oracle_model(stamp_ns: int, tgt) -> TargetModel:
+    """The target model an oracle camera builds of the true target at ``stamp_ns``."""
+    return TargetModel(
+        stamp_ns=stamp_ns,
+        model_id=1,
+        verifier="oracle",
+        x_m=tgt.robot_x_m,
+        y_m=tgt.robot_y_m,
+        rect_width_px=60,
+        rect_height_px=200,
+        image_width=320,
+        image_height=240,
+    )
+
+
+def _command(sim, ctl, state: TrackState, dt: float, scan: LaserScan, mount_x_m: float) -> None:
+    """The controller's command for ``state``, sent to the simulated base and camera."""
+    pts = view = None
+    if ctl.guard is not None:  # the controller's obstacle guard sees the scan
+        pts = scan_points(scan, mount_x_m)
+        view = scan_view(scan, mount_x_m)
+    cmd = ctl.on_target(state, dt, pts, view)
+    sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
+    sim.command_pan(cmd.pan_rad)
 
 
 def _truth_candidates(scan: LaserScan, tgt, noise_m: float, rng) -> PersonCandidates:

@@ -201,47 +201,16 @@ def test_bad_detector_settings_fail_at_load_with_the_key():
     assert s.detector_settings == {"min_points": 5}
 
 
-def far_person(stamp_ns: int):
-    """One person 3.8 m ahead (beyond the thesis's 3.5 m clip), a wall behind them."""
-    return make_scan(
-        person_legs(3.8, 0.0), [(6.0, -6.0, 6.0, 6.0)], stamp_ns=stamp_ns, fov_rad=math.radians(180)
-    )
-
-
-def test_detector_settings_while_lost_apply_only_while_the_tracker_reports_a_loss():
-    """detector_settings_while_lost {clip_range_m: 5.0}: a person 3.8 m away is found while
-    tracking/target says lost (and is recent), not while initialising, tracking or with a
-    stale loss; off, never. Both detectors see every scan; Health notes count the lost scans."""
-    h = Harness(detector_settings_while_lost={"clip_range_m": 5.0}, use_target_prediction=False)
-    off = Harness(use_target_prediction=False)
-    states = [
-        ("initialising", 0, False),
-        ("lost", 100 * MS, True),
-        ("tracking", 100 * MS, False),
-        ("lost", 900 * MS, False),  # older than prediction_max_age_s (0.5 s)
-        ("lost", 50 * MS, True),
-    ]
-    for k, (status, age, found) in enumerate(states):
-        t = (k + 1) * 1000 * MS
-        for harness in (h, off):
-            harness.put("tracking/target", target(t - age, 1.0, 0.0, status=status))
-            harness.put("sensors/scan", far_person(t))
-        assert len(h.out[-1].candidates) == found, status
-        assert off.out[-1].candidates == []
-    assert h.out[-1].candidates[0].x_m == pytest.approx(3.8, abs=0.1)
-    # the reach each scan's detector had: 5 m while lost, the thesis's 3.5 m clip otherwise
-    assert [m.reach_m for m in h.out] == [3.5, 5.0, 3.5, 3.5, 5.0]
-    assert {m.reach_m for m in off.out} == {3.5}
-    h.node.run_timer("notes")
-    assert "lost_scans=2" in h.node.notes and "lost_detector_errors=0" in h.node.notes
-    with pytest.raises(SettingsError, match=r"detector_settings_while_lost.*unknown field `foo`"):
-        load_settings(LaserLegsSettings, overrides=["detector_settings_while_lost={foo: 1}"])
-
-
 # --------------------------------------------------------------------------- real processes
 
 
 @pytest.mark.multiprocess
+@pytest.mark.parametrize("key", ["detector_settings_while_lost", "while_lost_new_near_look_m"])
+def test_a_removed_laser_legs_setting_is_named_as_removed(key):
+    with pytest.raises(SettingsError, match=f"--set: {key} was removed"):
+        load_settings(LaserLegsSettings, overrides=[f"{key}=1"])
+
+
 def test_synthetic_to_laser_legs_to_a_subscriber(spawn, endpoint, robot, zenoh_session):
     keys = Keys(robot)
     scans: queue.SimpleQueue = queue.SimpleQueue()
@@ -402,39 +371,3 @@ def test_a_failing_horizon_still_sends_the_candidates(monkeypatch, caplog):
     assert [len(m.candidates) for m in h.out] == [2]
     assert h.out[0].horizon is None
     assert "horizon of scan" in caplog.text  # logged (and counted in the Health notes)
-
-
-def test_while_lost_new_candidates_go_only_near_the_point_the_tracker_looks_at():
-    """while_lost_new_near_look_m: of the lost detector's candidates, those the ordinary one
-    found too always go; a new one (a half-hidden leg, say) only near the look point."""
-    from followbot.schemas import Candidate, LaserScan
-    from followbot.services.laser_legs.node import only_near_look
-
-    def cand(x, y):
-        return Candidate(x_m=x, y_m=y, range_m=math.hypot(x, y), bearing_rad=math.atan2(y, x))
-
-    ordinary = PersonCandidates(stamp_ns=1, candidates=[cand(2.0, 0.0)])
-    lost = PersonCandidates(
-        stamp_ns=1, candidates=[cand(2.03, 0.02), cand(1.0, -1.0), cand(-1.0, 1.5)]
-    )
-    look = TrackState(stamp_ns=1, status="lost", look_x_m=1.2, look_y_m=-0.8)
-    scan = LaserScan.from_ranges([1.0] * 3, stamp_ns=1, angle_min_rad=-0.1, angle_increment_rad=0.1)
-
-    def kept(pose, candidates=lost, target=look):
-        predictor = TargetPredictor(laser_pose=pose)
-        if target is not None:
-            predictor.add_target(target)
-        out = only_near_look(candidates, ordinary, predictor.look_point(scan), 0.5)
-        return [(c.x_m, c.y_m) for c in out.candidates]
-
-    assert kept((0.0, 0.0, 0.0)) == [(2.03, 0.02), (1.0, -1.0)]
-    # the look point is in the base frame: a laser mounted 0.3 m ahead, turned 90 deg left
-    # sees (1.2, -0.8) at (-0.8, -0.9)
-    turned = (0.3, 0.0, math.pi / 2)
-    assert kept(turned) == [(2.03, 0.02)]
-    lost_near = PersonCandidates(stamp_ns=1, candidates=[cand(-0.8, -1.0)])
-    assert len(kept(turned, lost_near)) == 1
-    # no look point named: nothing new goes, what both found still does
-    blind = TrackState(stamp_ns=1, status="lost")
-    assert kept((0, 0, 0), target=blind) == [(2.03, 0.02)]
-    assert kept((0, 0, 0), target=None)[0][0] == 2.03

@@ -16,13 +16,16 @@ from followbot.services.tracker.closedloop import metrics, run, world_estimate
 from followbot.services.tracker.core import Tracker, TrackerSettings, se2_change
 from followbot.services.tracker.estimators import (
     BUILTIN,
+    Estimator,
     KalmanWindowEstimator,
     KalmanWindowSettings,
     NearestFeatureEstimator,
     NearestSettings,
+    check_estimator,
     estimator_factory,
     registry,
 )
+from followbot.services.tracker.settings import IdentitySettings
 
 from .test_tracker_closed_loop import STANDING
 
@@ -302,7 +305,7 @@ def test_nearest_with_the_seeds_rule_loses_the_target_at_the_first_miss():
             estimator="nearest",
             estimator_settings={"max_unseen_s": 0.0},
             acquire="nearest",
-            laser_reacquire_min_speed_mps=0.0,  # the person stands: re-taken all the same
+            identity=IdentitySettings(laser_reacquire_min_speed_mps=0.0),
         )
     )
     statuses = []
@@ -372,3 +375,49 @@ def test_closed_loop_follows_the_walker_of_thesis_5_2_2(name):
     m = metrics(run("thesis_5_2_2_straight", estimator=name, duration_s=30.0))
     assert m["rmse_m"] < 0.1 and m["tracked_visible_share"] > 0.9
     assert m["identity_switches"] == 0
+
+
+@pytest.mark.parametrize("name", sorted(set(registry.names()) | set(ALL)))
+def test_every_estimator_keeps_the_protocol_and_its_batch_steps_give_the_per_track_numbers(name):
+    """Every installed estimator is an Estimator (base.py), batch steps included: three tracks
+    stepped by motion_all / cost_all / update_all end where the per-track calls take them."""
+    make = estimator_factory(name)
+    starts = [(2.0, 0.0), (1.5, 1.0), (3.0, -0.5)]
+
+    def tracks():
+        return [make(x, y, np.random.default_rng([7, i])) for i, (x, y) in enumerate(starts)]
+
+    assert all(isinstance(e, Estimator) for e in tracks())
+    cls = make.estimator_class
+    rot = np.array([[math.cos(0.1), -math.sin(0.1)], [math.sin(0.1), math.cos(0.1)]])
+    shift, points = np.array([0.05, -0.02]), np.array([[2.05, 0.1], [1.6, 1.1], [2.9, -0.4]])
+    batch, each = tracks(), tracks()
+    for _ in range(3):
+        cls.motion_all(batch, rot, shift, 0.12, [0, 0, 0])
+        for e in each:
+            e.ego_motion(rot, shift)
+            e.predict(0.12, 0)
+        cost = cls.cost_all(batch, points, [0, 0, 0])
+        for r, e in enumerate(each):
+            d = e.distance(points, 0)
+            np.testing.assert_allclose(cost[r], np.where(d <= e.gate(0), d, np.inf), atol=1e-9)
+        cls.update_all(batch, points, np.array([1.0, 2.0, 1.0]))
+        for e, z, k in zip(each, points, (1.0, 2.0, 1.0), strict=True):
+            e.update(z, k)
+        cls.prepare_all(batch)
+    for b, e in zip(batch, each, strict=True):
+        np.testing.assert_allclose(b.mean, e.mean, atol=1e-9)
+        snap = b.snapshot()
+        assert snap is not b and np.array_equal(snap.mean, b.mean)
+
+
+def test_an_estimator_class_missing_part_of_the_protocol_is_refused_naming_it():
+    class Half:
+        name = "half"
+        settings_type = NearestSettings
+
+        def predict(self, dt_s, misses): ...
+
+    with pytest.raises(TypeError, match=r"Half lacks mean, covariance, .*motion_all"):
+        check_estimator(Half)
+    check_estimator(NearestFeatureEstimator)  # a built-in one derives from EstimatorBase

@@ -26,8 +26,6 @@ from followbot.services.tracker.core import (
     OdometryBuffer,
     Tracker,
     TrackerSettings,
-    hidden_from_laser,
-    occluder_edge,
     se2_change,
     thesis_printed_transform,
     transform_points,
@@ -39,6 +37,12 @@ from followbot.services.tracker.estimators import (
     registry,
     sorted_copy_resample,
     systematic_resample,
+)
+from followbot.services.tracker.search import hidden_from_laser, occluder_edge
+from followbot.services.tracker.settings import (
+    AssociationSettings,
+    IdentitySettings,
+    SearchSettings,
 )
 
 MS = 1_000_000
@@ -280,8 +284,8 @@ def test_particle_batch_steps_match_the_per_track_steps(resampler, velocity_mode
 
 @pytest.mark.parametrize("name", ["particle", "ukf", "kalman_window"])
 def test_a_noisier_measurement_moves_the_estimate_less(name):
-    """noise_scale (the tracker's one_leg_noise_scale) widens the measurement noise: the same
-    measurement 0.2 m off pulls the estimate less, and 1 is the estimator's own model."""
+    """noise_scale (the tracker's association.one_leg_noise_scale) widens the measurement noise:
+    the same measurement 0.2 m off pulls the estimate less, and 1 is the estimator's own model."""
     make = estimator_factory(name)
     moved = {}
     for scale in (1.0, 3.0):
@@ -297,12 +301,16 @@ def test_a_noisier_measurement_moves_the_estimate_less(name):
 
 
 def test_one_leg_candidates_pull_the_track_less_when_asked():
-    """one_leg_noise_scale: a person seen by both legs, then by one leg 0.15 m aside (the
-    other hidden): the track follows the lone leg less (1 = the thesis, every candidate
+    """association.one_leg_noise_scale: a person seen by both legs, then by one leg 0.15 m aside
+    (the other hidden): the track follows the lone leg less (1 = the thesis, every candidate
     alike)."""
     out = {}
     for scale in (1.0, 3.0):
-        trk = Tracker(TrackerSettings(acquire="nearest", one_leg_noise_scale=scale))
+        trk = Tracker(
+            TrackerSettings(
+                acquire="nearest", association=AssociationSettings(one_leg_noise_scale=scale)
+            )
+        )
         for k in range(6):
             still_robot(trk, k * SCAN_NS)
             trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
@@ -420,7 +428,9 @@ def test_weighted_assignment_does_not_give_the_target_s_candidate_away(assignmen
     default 0.35 m leaves the cross pair at the target's gate's edge)."""
     trk = Tracker(
         TrackerSettings(
-            acquire="nearest", assignment=assignment, estimator_settings={"gate_m": 0.4}
+            acquire="nearest",
+            estimator_settings={"gate_m": 0.4},
+            association=AssociationSettings(assignment=assignment),
         )
     )
     target, other = (2.0, 0.0), (2.0, -0.6)
@@ -487,7 +497,7 @@ def test_late_verification_applies_to_the_scan_it_names_after_the_lag():
     """A at y=-0.8, B at y=+0.8; the target starts on A. Vision says B, late: the stamps it
     names are held for vision_lag_scans steps, then settle the target on B's track even though
     by then both have moved."""
-    trk = Tracker(TrackerSettings(vision_lag_scans=3, switch_votes=2))
+    trk = Tracker(TrackerSettings(vision_lag_scans=3, identity=IdentitySettings(switch_votes=2)))
     trk.set_vision_alive(True)
 
     def at(k):
@@ -510,34 +520,7 @@ def test_late_verification_applies_to_the_scan_it_names_after_the_lag():
     # scan 1's verification is applied at step 4, scan 2's at step 5: two votes -> switch at 5
     assert targets[:4] == [a_id] * 4
     assert targets[4:] == [b_id] * 4
-    assert trk.verifications_applied == 2 and trk.target_switches == 1
-
-
-@pytest.mark.parametrize(
-    ("needs_seen", "target_judged", "switched"),
-    [(False, False, True), (True, False, False), (True, True, True)],
-)
-def test_a_switch_needs_vision_to_have_seen_the_target_when_asked(
-    needs_seen, target_judged, switched
-):
-    """switch_needs_target_seen: the laser sees the target at (2, 0); vision prefers a thing
-    at (0.8, 0.3) in front of it, twice. Without seeing the target (its candidate not judged:
-    hidden in the image) that is no evidence against it; having seen it worse, it is."""
-    trk = following_at_two(switch_needs_target_seen=needs_seen)
-    front, me = (0.8, 0.3), (2.0, 0.0)
-    for k in range(1, 6):
-        still_robot(trk, k * SCAN_NS)
-        target, people = trk.step(cands(k * SCAN_NS, me, front))
-        if k in (2, 3):
-            trk.add_verification(
-                verification(
-                    k * SCAN_NS, [me, front], chosen=1,
-                    distances=[1.0 if target_judged else None, 0.6], threshold=0.8,
-                )
-            )  # fmt: skip
-    front_id = next(t.id for t in people.tracks if abs(t.x_m - 0.8) < 0.2)
-    assert (target.track_id == front_id) == switched
-    assert target.status == "tracking"
+    assert trk.identity.verifications_applied == 2 and trk.identity.target_switches == 1
 
 
 def test_verification_naming_an_unknown_scan_is_counted_not_applied():
@@ -547,11 +530,13 @@ def test_verification_naming_an_unknown_scan_is_counted_not_applied():
     trk.add_verification(verification(3 * SCAN_NS, [(2.0, 0.0)], chosen=0))
     still_robot(trk, 11 * SCAN_NS)
     trk.step(cands(11 * SCAN_NS, (2.0, 0.0)))
-    assert trk.verifications_unmatched == 1 and trk.verifications_applied == 0
+    assert trk.identity.verifications_unmatched == 1 and trk.identity.verifications_applied == 0
 
 
 def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
-    trk = following_at_two(look_gate_m=None)  # anyone vision takes (the gate: below)
+    trk = following_at_two(
+        search=SearchSettings(gate_m=None)
+    )  # anyone vision takes (the gate: below)
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))  # vision is fresh
     for k in range(1, 11):  # the target disappears: lost after 9 misses
         still_robot(trk, k * SCAN_NS)
@@ -572,9 +557,11 @@ def test_lost_target_is_reacquired_by_appearance_not_by_the_nearest():
 
 @pytest.mark.parametrize(("limit", "reacquired"), [(None, True), (0.7, False), (0.8, True)])
 def test_reacquisition_can_ask_for_a_closer_match_than_verification(limit, reacquired):
-    """reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost target
-    is re-taken from that only when the limit allows it."""
-    trk = following_at_two(reacquire_max_distance=limit, look_gate_m=None)
+    """identity.reacquire_max_distance: vision accepts someone at 0.75 (threshold 0.8); a lost
+    target is re-taken from that only when the limit allows it."""
+    trk = following_at_two(
+        identity=IdentitySettings(reacquire_max_distance=limit), search=SearchSettings(gate_m=None)
+    )
     trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
     for k in range(1, 11):
         still_robot(trk, k * SCAN_NS)
@@ -601,9 +588,9 @@ def lost_at_two(**settings):
 
 
 def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
-    """look_while_lost: nearest to where the target was lost first; a person vision rejected
-    look_rejections times is not looked at again; none while tracking or when switched off."""
-    trk, target = lost_at_two(look_gate_m=None, look_dwell_s=10.0)
+    """search.enabled: nearest to where the target was lost first; a person vision rejected
+    search.rejections times is not looked at again; none while tracking or when switched off."""
+    trk, target = lost_at_two(search=SearchSettings(gate_m=None, dwell_s=10.0))
     assert target.status == "lost" and target.look_track_id == -1  # nobody to look at
     a, b = (1.5, 1.0), (3.0, -1.0)  # a: 1.1 m from where the target was lost, b: 1.4 m
     looks = []
@@ -621,19 +608,18 @@ def test_while_lost_the_tracker_names_people_for_the_camera_to_look_at():
     assert looks[1:4] == [ids[a]] * 3
     assert looks[4:] == [ids[b]] * 5  # a was rejected twice (scans 13, 14): the camera turns to b
     assert (target.look_x_m, target.look_y_m) == pytest.approx(b, abs=0.05)
-    off = following_at_two(look_while_lost=False)
+    off = following_at_two(search=SearchSettings(enabled=False))
     for k in range(1, 15):
         still_robot(off, k * SCAN_NS)
         target, _ = off.step(cands(k * SCAN_NS, *([a, b] if k > 10 else [])))
     assert target.status == "lost" and target.look_track_id == -1
 
 
-@pytest.mark.parametrize(("hits", "first_look"), [(None, 1), (1, 0), (3, 2)])
-def test_look_confirm_hits_turns_the_camera_to_a_newcomer_from_its_first_scan(hits, first_look):
-    """look_confirm_hits: while lost, the camera turns to a new track once it took this many
-    candidates (None: confirm_hits, 2 -- the first scan after it appeared; 1: at once); the
-    track is reported in tracking/people after confirm_hits either way."""
-    trk, target = lost_at_two(look_gate_m=None, look_confirm_hits=hits)
+def test_while_lost_the_camera_turns_to_a_newcomer_once_it_is_confirmed():
+    """While lost, the camera turns to a new track once it took confirm_hits (2) candidates --
+    the scan after it appeared -- when it is also reported in tracking/people."""
+    trk, target = lost_at_two(search=SearchSettings(gate_m=None))
+    first_look = 1
     assert target.status == "lost" and target.look_track_id == -1
     looks, reported = [], []
     for k in range(11, 15):
@@ -645,35 +631,12 @@ def test_look_confirm_hits_turns_the_camera_to_a_newcomer_from_its_first_scan(hi
     assert reported == [0, 1, 1, 1]
 
 
-@pytest.mark.parametrize("far", [None, 3.5])
-def test_look_far_walking_m_looks_beyond_it_only_at_walkers(far):
-    """look_far_walking_m: while lost, a track standing 4 m away (furniture a longer
-    while-lost clip shows) is not looked at, one walking 4 m away is; off, both are."""
-    trk, target = lost_at_two(look_gate_m=None, look_far_walking_m=far)
-    assert target.status == "lost"
-    stander = (3.9, 0.9)
-    for k in range(11, 16):
-        still_robot(trk, k * SCAN_NS)
-        target, people = trk.step(cands(k * SCAN_NS, stander))
-    (stand,) = people.tracks
-    assert target.look_track_id == (-1 if far else stand.id)
-    for k in range(16, 24):  # a walker comes in from farther off, 0.6 m/s
-        still_robot(trk, k * SCAN_NS)
-        walker = (4.6 - 0.072 * (k - 16), -0.8)
-        target, people = trk.step(cands(k * SCAN_NS, stander, walker))
-    walking = next(t for t in people.tracks if t.y_m < 0)
-    if far:
-        assert target.look_track_id == walking.id
-    else:
-        assert target.look_track_id in {stand.id, walking.id}
-
-
 @pytest.mark.parametrize("rate", [None, 90.0])
 def test_look_turn_deg_s_starts_the_dwell_when_the_camera_can_be_there(rate):
-    """look_turn_deg_s: the camera, last sent to (2, 0) where the target was lost, is sent to
-    a newcomer 117 deg round; unjudged, it moves on after look_dwell_s (1 s) -- counted from
+    """search.turn_deg_s: the camera, last sent to (2, 0) where the target was lost, is sent to
+    a newcomer 117 deg round; unjudged, it moves on after search.dwell_s (1 s) -- counted from
     when the camera is sent, or (90 deg/s) from when it can have turned there, 1.3 s later."""
-    trk, target = lost_at_two(look_gate_m=None, look_dwell_s=1.0, look_turn_deg_s=rate)
+    trk, target = lost_at_two(search=SearchSettings(gate_m=None, dwell_s=1.0, turn_deg_s=rate))
     assert target.status == "lost"
     a, b = (-0.5, 1.0), (-1.0, -1.0)  # a nearer where the target was lost: looked at first
     looks = []
@@ -700,13 +663,14 @@ def _walk_then_hide(trk, scans_hidden):
 
 
 def _looks_past_look_max_s(start, step_m, **settings):
-    """_walk_then_hide for 20 scans with the look gate of 1 s and look_wide_max_distance,
+    """_walk_then_hide for 20 scans with the look gate of 1 s and search.wide_max_distance,
     then 10 scans of a walker from ``start`` moving ``step_m`` a scan along +y: (the last
     target state, the look_track_id of each of those scans)."""
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, laser_reacquire_m=0.0,
         **settings,
-    )  # fmt: skip
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45),
+        identity=IdentitySettings(laser_reacquire_m=0.0),
+    )
     target, k = _walk_then_hide(trk, 20)
     looks = []
     for j in range(k, k + 10):
@@ -717,10 +681,10 @@ def _looks_past_look_max_s(start, step_m, **settings):
 
 
 def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
-    """look_gate_m: after the loss the camera looks where the target should be by now (moved
+    """search.gate_m: after the loss the camera looks where the target should be by now (moved
     on at its walking velocity), and vision re-takes only someone near there; after
-    look_max_s anyone vision accepts, as without the gate."""
-    trk = following_at_two(look_while_lost=True, look_gate_m=0.5, look_max_s=4.0)
+    search.max_s anyone vision accepts, as without the gate."""
+    trk = following_at_two(search=SearchSettings(enabled=True, gate_m=0.5, max_s=4.0))
     target, k = _walk_then_hide(trk, 10)
     assert target.status == "lost" and target.look_track_id == -1
     lost_y = target.y_m
@@ -753,13 +717,13 @@ def test_look_gate_looks_and_retakes_only_where_the_lost_target_should_be():
     [(True, 0.4, True), (True, 0.6, False), (False, 0.4, False)],
 )
 def test_look_gate_grows_from_when_the_target_was_last_seen(since_seen, distance, retaken):
-    """look_gate_since_seen: the loss is declared after the miss budget (9 scans here), and the
+    """search.gate_since_seen: the loss is declared after the miss budget (9 scans here), and the
     hidden person walked on all that time. Someone 0.9 m from where the target should be,
     0.4 s after the loss, is within reach of a walker last seen 1.5 s ago (0.5 + 0.5 x 1.5 m),
     not of one counted from the loss (0.5 + 0.5 x 0.4 m): looked at only with the gate grown
-    from the last sighting, and re-taken there only on a close match (look_wide_max_distance,
+    from the last sighting, and re-taken there only on a close match (search.wide_max_distance,
     0.45)."""
-    trk = following_at_two(look_gate_m=0.5, look_max_s=4.0, look_gate_since_seen=since_seen)
+    trk = following_at_two(search=SearchSettings(gate_m=0.5, max_s=4.0, gate_since_seen=since_seen))
     target, k = _walk_then_hide(trk, 10)
     assert target.status == "lost" and target.look_track_id == -1
     out = (target.look_x_m - 0.9, target.look_y_m)
@@ -777,17 +741,17 @@ def test_look_gate_grows_from_when_the_target_was_last_seen(since_seen, distance
 
 def test_after_look_max_s_the_gate_no_longer_applies():
     trk = following_at_two(
-        look_while_lost=True, look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=None
+        search=SearchSettings(enabled=True, gate_m=0.5, max_s=1.0, wide_max_distance=None)
     )
     target, k = _walk_then_hide(trk, 10)
     back = (2.0, -0.5)
-    for j in range(k, k + 14):  # 1.7 s: past look_max_s
+    for j in range(k, k + 14):  # 1.7 s: past search.max_s
         still_robot(trk, j * SCAN_NS)
         target, _ = trk.step(cands(j * SCAN_NS, back))
         trk.add_verification(verification(j * SCAN_NS, [back], chosen=0))
     assert target.status == "tracking" and target.y_m == pytest.approx(-0.5, abs=0.1)
     # without the gate the bystander is taken as soon as vision accepts it
-    trk = following_at_two(look_gate_m=None)
+    trk = following_at_two(search=SearchSettings(gate_m=None))
     target, k = _walk_then_hide(trk, 10)
     for j in range(k, k + 4):
         still_robot(trk, j * SCAN_NS)
@@ -798,15 +762,15 @@ def test_after_look_max_s_the_gate_no_longer_applies():
 
 @pytest.mark.parametrize("distance", [0.6, 0.4])
 def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_match(distance):
-    """look_wide_max_distance: past look_max_s the camera looks at people far from where the
+    """search.wide_max_distance: past search.max_s the camera looks at people far from where the
     target should be (not only at that point), and vision re-takes such a person only on a
     close match (bellotto_cluttered_office: the target comes back past the stopped robot)."""
     looks = {}
     for wide in (None, 0.45):
-        trk = following_at_two(look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=wide)
+        trk = following_at_two(search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=wide))
         target, k = _walk_then_hide(trk, 10)
         seen = []
-        for j in range(k, k + 20):  # 2.4 s: past look_max_s; a walker 3 m from the gate
+        for j in range(k, k + 20):  # 2.4 s: past search.max_s; a walker 3 m from the gate
             walker = (1.0 + 0.06 * (j - k), -1.5)
             still_robot(trk, j * SCAN_NS)
             target, _ = trk.step(cands(j * SCAN_NS, walker))
@@ -822,7 +786,7 @@ def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_matc
             target, _ = trk.step(cands(j * SCAN_NS, walker))
         retaken = target.status == "tracking" and target.y_m == pytest.approx(-1.5, abs=0.15)
         if wide is None:
-            assert retaken  # as before: anyone vision accepts past look_max_s
+            assert retaken  # as before: anyone vision accepts past search.max_s
         else:
             assert retaken == (distance <= wide)
     assert set(looks[None]) == {-1}  # the camera stays on the point where the target should be
@@ -831,20 +795,20 @@ def test_look_wide_looks_at_everyone_past_the_gate_and_retakes_only_a_close_matc
 
 @pytest.mark.parametrize("keep", [0, 2])
 def test_the_camera_stays_on_a_flickering_newcomer_with_look_keep_misses(keep):
-    """bellotto_cluttered_office, in small: past look_max_s a newcomer far from where the
+    """bellotto_cluttered_office, in small: past search.max_s a newcomer far from where the
     target should be is seen only every other scan (half hidden among shelves). With
-    look_keep_misses 0 each miss sends the camera back to the point, and it swings to and fro;
+    search.keep_misses 0 each miss sends the camera back to the point, and it swings to and fro;
     with 2 it keeps looking at the newcomer."""
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_keep_misses=keep
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45, keep_misses=keep)
     )
-    target, k = _walk_then_hide(trk, 20)  # lost, past look_max_s
+    target, k = _walk_then_hide(trk, 20)  # lost, past search.max_s
     looks = []
     for j in range(k, k + 16):
         still_robot(trk, j * SCAN_NS)
         target, _ = trk.step(cands(j * SCAN_NS, (1.0, -1.5)) if j % 2 else cands(j * SCAN_NS))
         looks.append(target.look_track_id)
-    on = [i >= 0 for i in looks[3:12]]  # from its first look for look_dwell_s (1 s)
+    on = [i >= 0 for i in looks[3:12]]  # from its first look for search.dwell_s (1 s)
     assert target.status == "lost"
     if keep:
         assert all(on), str(looks)
@@ -854,13 +818,19 @@ def test_the_camera_stays_on_a_flickering_newcomer_with_look_keep_misses(keep):
 
 @pytest.mark.parametrize("new_first", [False, True])
 def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
-    """look_new_first: past look_max_s, while the camera dwells on where the target should be
+    """search.new_first: past search.max_s, while the camera dwells on where the target should be
     between rounds of newcomers, someone new appearing is looked at at once (the dwell is for
     looking again at the same people)."""
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_dwell_s=1.0,
-        look_new_first=new_first, look_turn_deg_s=None,  # the dwell from the look (timings)
-    )  # fmt: skip
+        search=SearchSettings(
+            gate_m=0.5,
+            max_s=1.0,
+            wide_max_distance=0.45,
+            dwell_s=1.0,
+            new_first=new_first,
+            turn_deg_s=None,
+        )
+    )
     target, k = _walk_then_hide(trk, 20)
     first = (1.0, -1.5)
     looks = []
@@ -881,22 +851,18 @@ def test_a_newcomer_ends_the_dwell_on_the_point_with_look_new_first(new_first):
     assert (target.look_track_id == new_id) == new_first
 
 
-@pytest.mark.parametrize("near_walkers", [False, True])
-def test_look_near_walkers_looks_at_a_walker_near_the_point_and_a_stander_needs_a_close_match(
-    near_walkers,
-):
-    """look_near_walkers: past look_max_s the camera looks at someone walking within
-    look_wide_gate_m of where the lost target should be (about (2, 2.3)) but at another
-    bearing, not only at the point; someone standing there (a door frame's track) is re-taken
-    only on a close match."""
+def test_past_look_max_s_the_camera_stays_on_the_point_and_anyone_accepted_near_it_is_taken():
+    """Past search.max_s the camera looks at where the lost target should be (about (2, 2.3)),
+    not at someone walking within search.wide_gate_m of it at another bearing; someone vision
+    accepts near the point is re-taken on an ordinary acceptance."""
     # a walker ~1.2 m from the point, ~20 deg from it
-    target, looks = _looks_past_look_max_s((2.8, 1.3), 0.06, look_near_walkers=near_walkers)
+    target, looks = _looks_past_look_max_s((2.8, 1.3), 0.06)
     assert target.status == "lost"
-    assert (max(looks[3:]) >= 0) == near_walkers
+    assert max(looks[3:]) < 0
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45,
-        look_near_walkers=near_walkers, laser_reacquire_m=0.0,
-    )  # fmt: skip
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45),
+        identity=IdentitySettings(laser_reacquire_m=0.0),
+    )
     target, k = _walk_then_hide(trk, 20)
     stander = (2.2, 1.4)  # 0.5 m from the point, standing; vision accepts it at 0.6
     for j in range(k, k + 8):
@@ -906,21 +872,21 @@ def test_look_near_walkers_looks_at_a_walker_near_the_point_and_a_stander_needs_
                 verification(j * SCAN_NS, [stander], chosen=0, distances=[0.6], threshold=0.8)
             )
         target, _ = trk.step(cands(j * SCAN_NS, stander))
-    assert (target.status == "tracking") != near_walkers
+    assert target.status == "tracking"
 
 
 def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_as_before():
-    """look_wide_max_distance: within look_wide_gate_m of where the lost target should be
+    """search.wide_max_distance: within search.wide_gate_m of where the lost target should be
     (here about (2, 1.9)) anyone vision accepts is re-taken, as without the setting; a person
     tracked since before the loss is not looked at."""
-    trk = following_at_two(look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45)
+    trk = following_at_two(search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45))
     old = (1.0, -1.5)  # walking since before the loss
     for k in range(1, 16):
         still_robot(trk, k * SCAN_NS)
         trk.step(cands(k * SCAN_NS, (2.0, 0.06 * k), (old[0] + 0.06 * k, old[1])))
         trk.add_verification(verification(k * SCAN_NS, [(2.0, 0.06 * k)], chosen=0))
     looks = []
-    for k in range(16, 46):  # hidden, then lost; past look_max_s
+    for k in range(16, 46):  # hidden, then lost; past search.max_s
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (old[0] + 0.06 * k, old[1])))
         looks.append(target.look_track_id)
@@ -937,7 +903,10 @@ def test_look_wide_leaves_people_near_where_the_target_should_be_and_old_tracks_
 
 def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
     # (vision judges nobody here: no laser-only re-acquisition of the still one meanwhile)
-    trk = following_at_two(look_while_lost=True, look_dwell_s=0.5, laser_reacquire_m=0.0)
+    trk = following_at_two(
+        search=SearchSettings(enabled=True, dwell_s=0.5),
+        identity=IdentitySettings(laser_reacquire_m=0.0),
+    )
     for k in range(1, 11):
         still_robot(trk, k * SCAN_NS)
         trk.step(cands(k * SCAN_NS))
@@ -958,8 +927,12 @@ def test_a_moving_person_is_looked_at_before_a_still_one_and_each_in_turn():
 
 
 def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
-    # whoever is there, walking or not (laser_reacquire_min_speed_mps 0; default: walkers)
-    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.0))
+    # whoever is there, walking or not (identity.laser_reacquire_min_speed_mps 0; default: walkers)
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest", identity=IdentitySettings(laser_reacquire_min_speed_mps=0.0)
+        )
+    )
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -970,9 +943,9 @@ def test_without_vision_a_lost_target_is_retaken_near_where_it_was_lost():
 
 
 def test_without_vision_only_a_walker_is_retaken_when_asked():
-    """laser_reacquire_min_speed_mps: where the target vanished, a still thing (clutter) is
+    """identity.laser_reacquire_min_speed_mps: where the target vanished, a still thing (clutter) is
     not taken for it; a person walking there is, once the tracker has seen them move."""
-    trk = Tracker(TrackerSettings(acquire="nearest"))  # laser_reacquire_min_speed_mps 0.25
+    trk = Tracker(TrackerSettings(acquire="nearest"))  # identity.laser_reacquire_min_speed_mps 0.25
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -989,11 +962,14 @@ def test_without_vision_only_a_walker_is_retaken_when_asked():
 
 @pytest.mark.parametrize("max_s, retaken", [(None, True), (3.0, True), (1.0, False)])
 def test_without_vision_a_lost_target_is_retaken_only_soon_after_the_loss(max_s, retaken):
-    """laser_reacquire_max_s: 2.5 s after the loss, someone passing where the target was lost
-    is taken for it only when the window is longer than that."""
+    """identity.laser_reacquire_max_s: 2.5 s after the loss, someone passing where the target was
+    lost is taken for it only when the window is longer than that."""
     trk = Tracker(
         TrackerSettings(
-            acquire="nearest", laser_reacquire_min_speed_mps=0.0, laser_reacquire_max_s=max_s
+            acquire="nearest",
+            identity=IdentitySettings(
+                laser_reacquire_min_speed_mps=0.0, laser_reacquire_max_s=max_s
+            ),
         )
     )
     for k in range(12):
@@ -1095,15 +1071,15 @@ def rejected_every_scan(
 @pytest.mark.parametrize("reject_votes", [1, 2, 3])
 def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
     """Following someone vision says is not the target (e.g. after a crossing swapped the
-    tracks): after reject_votes rejections the target is dropped and the robot stops. Vision
-    answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
-    settings = TrackerSettings(reject_votes=reject_votes, rollback=False)
+    tracks): after identity.reject_votes rejections the target is dropped and the robot stops.
+    Vision answers scan k after seeing its candidates; the tracker applies that at scan k + 1."""
+    settings = TrackerSettings(identity=IdentitySettings(reject_votes=reject_votes, rollback=False))
     trk, target, statuses = rejected_every_scan(settings, (2.0, 0.0), 1.2, 6)
     assert target.status == "tracking"
     # the rejections of scans 1..R are applied at steps 2..R+1
     assert statuses[:reject_votes] == ["tracking"] * reject_votes
     assert statuses[reject_votes] == "lost"
-    assert trk.target_rejections >= 1
+    assert trk.identity.target_rejections >= 1
     # it comes back only by appearance: a verification that accepts the person
     trk2_k = 7
     still_robot(trk, trk2_k * SCAN_NS)
@@ -1116,15 +1092,17 @@ def test_the_target_is_dropped_when_vision_keeps_rejecting_it(reject_votes):
 
 @pytest.mark.parametrize(("reject_min_range_m", "dropped"), [(0.0, True), (0.7, False)])
 def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_range_m, dropped):
-    """reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
-    rejections then count for nothing (0: every rejection counts; reject_hysteresis off here,
-    which would also let 0.84 pass for a target surely held)."""
+    """identity.reject_min_range_m: a target 0.5 m away shows the camera a third of its body; its
+    rejections then count for nothing (0: every rejection counts; identity.reject_hysteresis off
+    here, which would also let 0.84 pass for a target surely held)."""
     settings = TrackerSettings(
-        reject_min_range_m=reject_min_range_m, rollback=False, reject_hysteresis=0.0
+        identity=IdentitySettings(
+            reject_min_range_m=reject_min_range_m, rollback=False, reject_hysteresis=0.0
+        )
     )
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 5)
     assert ("lost" in statuses) == dropped
-    assert trk.rejections_near == (0 if dropped else 4)
+    assert trk.identity.rejections_near == (0 if dropped else 4)
 
 
 @pytest.mark.parametrize(
@@ -1132,14 +1110,16 @@ def test_rejections_of_a_target_too_near_the_camera_can_be_ignored(reject_min_ra
     [((), (), False), (((0.5, 0.7),), (), True), ((), (1,), True), (((2.5, 0.1),), (), False)],
 )
 def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others, hidden, dropped):
-    """near_guard_m: a near rejection counts for nothing only while the target took a
+    """identity.near_guard_m: a near rejection counts for nothing only while the target took a
     candidate on every scan since vision accepted it and nobody came within the guard. A
     target that passed someone near it, or was hidden (a passer-by may have appeared where it
     was), is judged as usual; someone farther than the guard changes nothing."""
-    settings = TrackerSettings(reject_min_range_m=0.7, near_guard_m=1.0, rollback=False)
+    settings = TrackerSettings(
+        identity=IdentitySettings(reject_min_range_m=0.7, near_guard_m=1.0, rollback=False)
+    )
     trk, _, statuses = rejected_every_scan(settings, (0.5, 0.1), 0.84, 6, others, hidden)
     assert ("lost" in statuses) == dropped
-    assert (trk.rejections_near > 0) != dropped
+    assert (trk.identity.rejections_near > 0) != dropped
 
 
 @pytest.mark.parametrize(
@@ -1150,11 +1130,13 @@ def test_near_rejections_are_ignored_only_for_a_target_surely_not_swapped(others
 def test_rejections_just_above_the_threshold_keep_a_target_surely_held(
     hysteresis, distance, others, dropped
 ):
-    """reject_hysteresis: vision judges the target 0.85 against 0.8 again and again
+    """identity.reject_hysteresis: vision judges the target 0.85 against 0.8 again and again
     (door_corner seed 3). While the track is surely the one vision last accepted, such a
     rejection counts for nothing with a 0.1 hysteresis; 0.95 still counts, and so does 0.85
-    once someone came within near_guard_m of it."""
-    settings = TrackerSettings(reject_hysteresis=hysteresis, rollback=False)
+    once someone came within identity.near_guard_m of it."""
+    settings = TrackerSettings(
+        identity=IdentitySettings(reject_hysteresis=hysteresis, rollback=False)
+    )
     _, _, statuses = rejected_every_scan(settings, (2.0, 0.0), distance, 6, others)
     assert ("lost" in statuses) == dropped
 
@@ -1164,7 +1146,7 @@ def test_a_pair_of_two_peoples_legs_is_split_between_their_tracks(split):
     """Two people 0.5 m apart, each with a track; one leg of each is hidden and the detector
     pairs the two visible ones (0.44 m apart) into one candidate between them. Split, each
     track takes its own leg; unsplit, one track is pulled to the middle."""
-    trk = Tracker(TrackerSettings(split_pair_m=split))
+    trk = Tracker(TrackerSettings(association=AssociationSettings(split_pair_m=split)))
     trk.set_vision_alive(True)
     for k in range(4):
         still_robot(trk, k * SCAN_NS)
@@ -1227,11 +1209,10 @@ def judged_at_two(stamp_ns, points):
 def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(rollback):
     """The target stands at (2, 0); a passer-by walks across in front of it and hides it for
     three scans. Their candidate lies inside the target's gate, so the target takes it once;
-    vision (one scan late) rejects that candidate. With rollback the target returns to where
-    it was and coasts while a new track follows the passer-by; without, the estimate is
-    dragged onto the passer-by. (With front_approach_factor the standing target does not take
-    a candidate 0.25 m nearer at all, which leaves no rollback to test.)"""
-    trk = following_at_two(rollback=rollback, front_approach_factor=None)
+    vision (one scan late) rejects that candidate. With identity.rollback the target returns to
+    where it was and coasts while a new track follows the passer-by; without, the estimate is
+    dragged onto the passer-by."""
+    trk = following_at_two(identity=IdentitySettings(rollback=rollback))
     # scans 1..2 the target alone; 3..5 only the passer-by (target hidden); 6.. both
     passer = {3: (1.75, 0.2), 4: (1.7, 0.05), 5: (1.68, -0.1), 6: (1.66, -0.3), 7: (1.65, -0.5)}
     target_id = None
@@ -1246,13 +1227,13 @@ def test_a_rejected_candidate_rolls_the_target_back_instead_of_pulling_it_away(r
         errors.append(math.hypot(target.x_m - 2.0, target.y_m))
         trk.add_verification(judged_at_two(k * SCAN_NS, points))
     if rollback:
-        assert trk.rollbacks >= 1
+        assert trk.identity.rollbacks >= 1
         # the passer-by pulls the estimate for one scan at most (vision is one scan late)
         assert max(errors[3:]) < 0.35 and max(errors[5:]) < 0.1, errors
         assert target.status == "tracking" and target.track_id == target_id
         assert any(math.hypot(p.x_m - 1.65, p.y_m + 0.5) < 0.2 for p in people.tracks)
     else:
-        assert trk.rollbacks == 0
+        assert trk.identity.rollbacks == 0
         assert max(errors) > 0.25  # the estimate went onto the passer-by
 
 
@@ -1271,26 +1252,26 @@ def test_a_rollback_goes_back_past_the_scans_vision_did_not_judge():
         if k == 3:
             continue  # vision did not judge scan 3
         trk.add_verification(judged_at_two(k * SCAN_NS, points))
-    assert trk.rollbacks == 1
+    assert trk.identity.rollbacks == 1
     assert target.status == "tracking"
     assert math.hypot(target.x_m - 2.0, target.y_m) < 0.1
 
 
 def test_a_rejection_of_the_target_where_it_was_expected_does_not_split_it():
-    """Its look changed (turning round), its position did not jump: no rollback."""
+    """Its look changed (turning round), its position did not jump: no identity.rollback."""
     trk = following_at_two()
     for k, d in enumerate([0.3, 1.2, 0.3, 0.3], start=1):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
         assert target.status == "tracking"
         trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
-    assert trk.rollbacks == 0
+    assert trk.identity.rollbacks == 0
 
 
 def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
     """The target's candidate jumps 0.25 m (a long step, or a leg paired anew) and vision
-    wrongly rejects it: the rollback splits the track; the next verification that accepts the
-    person repairs the split. The target is never lost."""
+    wrongly rejects it: the identity.rollback splits the track; the next verification that accepts
+    the person repairs the split. The target is never lost."""
     trk = following_at_two()
     statuses = []
     xs = [2.0, 2.25, 2.25, 2.25, 2.25, 2.25, 2.25]
@@ -1299,20 +1280,20 @@ def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
         target, _ = trk.step(cands(k * SCAN_NS, (x, 0.0)))
         statuses.append(target.status)
         trk.add_verification(rejection(k * SCAN_NS, (x, 0.0), distance=d))
-    assert trk.rollbacks == 1
+    assert trk.identity.rollbacks == 1
     assert "lost" not in statuses and statuses.count("coasting") <= 2, statuses
     assert statuses[-2:] == ["tracking", "tracking"]
     assert math.hypot(target.x_m - 2.25, target.y_m) < 0.1
 
 
 def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
-    trk = following_at_two(reject_votes=2, rollback=False)
+    trk = following_at_two(identity=IdentitySettings(reject_votes=2, rollback=False))
     for k, d in enumerate([1.2, 0.3, 1.2, 0.3, 1.2, 0.3], start=1):  # never two in a row
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
         assert target.status == "tracking"
         trk.add_verification(rejection(k * SCAN_NS, (2.0, 0.0), distance=d))
-    assert trk.target_rejections == 0
+    assert trk.identity.target_rejections == 0
 
 
 @pytest.mark.parametrize(("coast", "turn"), [(1.0, 0.0), (1.0, 0.4), (0.0, 0.0)])
@@ -1458,10 +1439,10 @@ def test_occluder_edge_wraps_round_a_full_circle_horizon():
 
 @pytest.mark.parametrize("edge", [True, False])
 def test_while_lost_behind_a_pillar_the_camera_looks_where_the_target_comes_out(edge):
-    """look_occluder_edge: the target walks left behind a pillar 1 m ahead (bearings -5..50
+    """search.occluder_edge: the target walks left behind a pillar 1 m ahead (bearings -5..50
     deg) and is lost; with nobody to look at, the camera looks past the pillar's left edge,
     not at the hidden point where the target should be. Off: at that point."""
-    trk = following_at_two(look_gate_m=0.5, look_occluder_edge=edge)
+    trk = following_at_two(search=SearchSettings(gate_m=0.5, occluder_edge=edge))
     pillar = horizon_of([(-5, 50, 1.0)])
     for k in range(1, 16):
         still_robot(trk, k * SCAN_NS)
@@ -1471,7 +1452,7 @@ def test_while_lost_behind_a_pillar_the_camera_looks_where_the_target_comes_out(
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS), horizon=pillar))
     assert target.status == "lost" and target.look_track_id == -1
-    where = trk._predicted_lost()
+    where = trk.search.predicted()
     assert 0.0 < _bearing_deg(where) < 50.0  # behind the pillar
     look = (target.look_x_m, target.look_y_m)
     if edge:
@@ -1501,107 +1482,33 @@ def _walk_behind(trk, horizon_while_hidden, hidden_scans, reappear=True):
         still_robot(trk, k * SCAN_NS)
         c = msgspec.structs.replace(cands(k * SCAN_NS), horizon=horizon_while_hidden)
         target, _ = trk.step(c)
-        statuses.append((target.status, "target_hidden" in target.flags))
+        statuses.append(target.status)
     k = 15 + hidden_scans
     still_robot(trk, k * SCAN_NS)
     after, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS, at(k)), horizon=horizon_of()))
     return tid, statuses, after
 
 
-def test_a_person_hidden_behind_something_is_kept_through_a_2_s_occlusion():
-    """occlusion_max_s: 17 scans (2 s) behind a wall 1.5 m ahead do not count as misses; the
-    track coasts on and takes the person back where they come out (same id, tracking)."""
-    trk = Tracker(TrackerSettings(acquire="nearest", occlusion_max_s=3.0))
-    wall = horizon_of([(-60, 60, 1.5)])
-    tid, statuses, after = _walk_behind(trk, wall, 17)
-    assert statuses == [("coasting", True)] * 17
-    assert after.status == "tracking" and after.track_id == tid
-
-
-@pytest.mark.parametrize(
-    ("what", "settings"),
-    [
-        ("free", {"occlusion_max_s": 3.0}),
-        ("no_horizon", {"occlusion_max_s": 3.0}),
-        ("off", {}),  # the default
-    ],
-)
-def test_a_miss_in_plain_view_counts_as_the_thesis_says(what, settings):
+@pytest.mark.parametrize("what", ["free", "no_horizon", "wall"])
+def test_every_miss_counts_as_the_thesis_says(what):
     """Nothing in front (the laser looked and the person was not there), no horizon in the
-    message, or the setting off: lost after more than 8 misses, as before."""
-    trk = Tracker(TrackerSettings(acquire="nearest", **settings))
-    h = {"free": horizon_of(), "no_horizon": None, "off": horizon_of([(-60, 60, 1.5)])}[what]
+    message, or a wall hiding the person: lost after more than 8 misses."""
+    trk = Tracker(TrackerSettings(acquire="nearest"))
+    h = {"free": horizon_of(), "no_horizon": None, "wall": horizon_of([(-60, 60, 1.5)])}[what]
     _tid, statuses, _after = _walk_behind(trk, h, 12)
-    assert [s for s, _ in statuses[:8]] == ["coasting"] * 8
-    assert statuses[8][0] == "lost"
-    assert not any(hidden for _, hidden in statuses)
-
-
-def test_a_hidden_track_is_still_dropped_after_occlusion_max_s():
-    trk = Tracker(TrackerSettings(acquire="nearest", occlusion_max_s=1.5))
-    _tid, statuses, _after = _walk_behind(trk, horizon_of([(-60, 60, 1.5)]), 16)
-    lost_at = [s for s, _ in statuses].index("lost")
-    # last seen at scan 14: 1.5 s later is scan 26.5, the 12th hidden scan (index 12)
-    assert lost_at == 12
-
-
-def test_a_long_hidden_track_takes_only_what_no_other_track_takes():
-    """Past the thesis's miss budget a hidden target takes a candidate only when no other
-    track takes it: here the assignment of least total distance would give the target (hidden
-    14 scans, gate 0.85 m) the candidate 0.40 m from it and its neighbour the one 0.35 m from
-    the neighbour; instead the neighbour keeps the nearer one and the target coasts on."""
-    trk = Tracker(TrackerSettings(acquire="nearest", occlusion_max_s=3.0))
-    pillar = horizon_of([(-10, 5, 1.5)])  # hides the target at bearing 0, not the neighbour
-    for k in range(15):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(
-            msgspec.structs.replace(
-                cands(k * SCAN_NS, (2.5, 0.0), (2.5, 0.7)), horizon=horizon_of()
-            )
-        )
-    tid = target.track_id
-    for k in range(15, 29):
-        still_robot(trk, k * SCAN_NS)
-        target, people = trk.step(
-            msgspec.structs.replace(cands(k * SCAN_NS, (2.5, 0.7)), horizon=pillar)
-        )
-    assert target.track_id == tid and target.misses == 14 and "target_hidden" in target.flags
-    neighbour = next(p.id for p in people.tracks if p.id != tid)
-    still_robot(trk, 29 * SCAN_NS)
-    target, people = trk.step(
-        msgspec.structs.replace(cands(29 * SCAN_NS, (2.5, 0.40), (2.5, 1.05)), horizon=pillar)
-    )
-    assert target.track_id == tid and target.status == "coasting" and target.misses == 15
-    where = {p.id: (p.x_m, p.y_m) for p in people.tracks}
-    assert where[neighbour][1] < 0.6  # the neighbour took the candidate at y = 0.40
-
-
-def test_only_the_targets_track_is_kept_while_hidden():
-    """Other people's tracks are deleted after more than 8 misses, hidden or not: kept, they
-    competed with the people coming out from behind things (crowd_ten)."""
-    trk = Tracker(TrackerSettings(acquire="nearest", occlusion_max_s=3.0))
-    wall = horizon_of([(15, 30, 1.5)])  # hides the bystander at 22 degrees, not the target
-    for k in range(15):
-        still_robot(trk, k * SCAN_NS)
-        target, people = trk.step(
-            msgspec.structs.replace(
-                cands(k * SCAN_NS, (2.5, 0.0), (2.5, 1.0)), horizon=horizon_of()
-            )
-        )
-    bystander = next(p.id for p in people.tracks if p.id != target.track_id)
-    for k in range(15, 24):
-        still_robot(trk, k * SCAN_NS)
-        target, people = trk.step(
-            msgspec.structs.replace(cands(k * SCAN_NS, (2.5, 0.0)), horizon=wall)
-        )
-    assert target.status == "tracking" and bystander not in trk.tracks
+    assert statuses[:8] == ["coasting"] * 8
+    assert statuses[8] == "lost"
 
 
 def test_without_vision_nothing_at_the_robot_itself_is_retaken():
-    """laser_reacquire_min_range_m: a target lost 0.4 m ahead is not re-taken by the laser
+    """identity.laser_reacquire_min_range_m: a target lost 0.4 m ahead is not re-taken by the laser
     from a track 0.2 m from the laser (the robot's body, or what it drove up to); a person
     0.45 m away is."""
-    trk = Tracker(TrackerSettings(acquire="nearest", laser_reacquire_min_speed_mps=0.0))
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest", identity=IdentitySettings(laser_reacquire_min_speed_mps=0.0)
+        )
+    )
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (0.4, 0.0)) if k < 2 else cands(k * SCAN_NS))
@@ -1614,137 +1521,23 @@ def test_without_vision_nothing_at_the_robot_itself_is_retaken():
     assert target.status == "tracking" and target.x_m == pytest.approx(0.45, abs=0.1)
 
 
-def _hidden_walk_with_vision(trk, hidden_scans, extra=()):
-    """The target walks across 2.5 m ahead at 0.6 m/s, accepted by vision, then a wall 1.5 m
-    ahead hides it for ``hidden_scans`` scans while ``extra`` candidates (fixed) are seen;
-    returns (track id, the outputs while hidden, the scan after)."""
-    dt = SCAN_NS / 1e9
-
-    def at(k):
-        return (2.5, -1.0 + 0.6 * dt * k)
-
-    trk.set_vision_alive(True)
-    still_robot(trk, 0)
-    trk.set_target_model(model(0, *at(0)))
-    for k in range(15):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(
-            msgspec.structs.replace(cands(k * SCAN_NS, at(k), *extra), horizon=horizon_of())
-        )
-        trk.add_verification(verification(k * SCAN_NS, [at(k), *extra], chosen=0, threshold=0.8))
-    tid = target.track_id
-    outputs = []
-    wall = horizon_of([(-60, 60, 1.5)])
-    for k in range(15, 15 + hidden_scans):
-        still_robot(trk, k * SCAN_NS)
-        c = msgspec.structs.replace(cands(k * SCAN_NS, *extra), horizon=wall)
-        outputs.append(trk.step(c)[0])
-    return tid, outputs, 15 + hidden_scans
-
-
-@pytest.mark.parametrize("edge", [False, True])
-def test_a_target_hidden_past_the_miss_budget_is_searched_for_while_its_track_coasts(edge):
-    """occlusion_look: within the thesis's 8 misses nothing changes; from the 9th the camera
-    is asked to look where the target should be (as for a lost target, same gate), while the
-    status stays coasting on the hidden track; the person taken back where they come out.
-    With look_occluder_edge (the default) the camera looks past the end of the wall that hides
-    that point (at 60 deg), on the side the walker went, at the point's range."""
-    trk = Tracker(TrackerSettings(occlusion_max_s=3.0, look_occluder_edge=edge))
-    tid, outputs, k = _hidden_walk_with_vision(trk, 12)
-    assert all(o.status == "coasting" and o.track_id == tid for o in outputs)
-    assert all(o.look_track_id == -1 and (o.look_x_m, o.look_y_m) == (0, 0) for o in outputs[:8])
-    searching = outputs[8:]
-    if edge:
-        bearings = [math.degrees(math.atan2(o.look_y_m, o.look_x_m)) for o in searching]
-        assert all(61.0 < b < 70.0 for b in bearings)
-        assert all(math.hypot(o.look_x_m, o.look_y_m) < 2.8 for o in searching)
-    else:
-        assert all(o.look_x_m == pytest.approx(2.5, abs=0.3) for o in searching)
-        assert searching[-1].look_y_m > searching[0].look_y_m  # moving on with the walker
-    assert trk._searching
-    # they come out where the track expects them: taken back by the laser, the search over
-    still_robot(trk, k * SCAN_NS)
-    where = (2.5, -1.0 + 0.6 * (SCAN_NS / 1e9) * k)
-    c = msgspec.structs.replace(cands(k * SCAN_NS, where), horizon=horizon_of())
-    target, _ = trk.step(c)
-    assert target.status == "tracking" and target.track_id == tid
-    assert (target.look_track_id, target.look_x_m, target.look_y_m) == (-1, 0, 0)
-    # without occlusion_look the camera is told nothing while the track coasts
-    quiet = Tracker(TrackerSettings(occlusion_max_s=3.0, occlusion_look=False))
-    _tid, outputs, _k = _hidden_walk_with_vision(quiet, 12)
-    assert all((o.look_x_m, o.look_y_m) == (0, 0) for o in outputs)
-
-
-def test_a_new_person_inside_the_search_gate_ends_the_hidden_guess():
-    """Past the budget, someone new where the target can be (inside the look gate, 0.5 m +
-    0.5 m/s since the search began) but beyond the hidden track's own gate may be the target
-    come out elsewhere: the hidden track goes at once and the target is lost, for vision to
-    decide -- not reported at its guessed place meanwhile."""
-    trk = Tracker(TrackerSettings(occlusion_max_s=3.0))
-    tid, outputs, k = _hidden_walk_with_vision(trk, 20)
-    assert outputs[-1].status == "coasting" and trk._searching
-    guess = (outputs[-1].x_m, outputs[-1].y_m)
-    # 1.05 m nearer than the guess: the look gate is ~1.2 m by now, the track's gate 0.95 m
-    newcomer = (guess[0] - 1.05, guess[1])
-    still_robot(trk, k * SCAN_NS)
-    bearing = math.degrees(math.atan2(guess[1], guess[0]))  # the guess stays hidden
-    wall = horizon_of([(bearing - 10, bearing + 10, 1.5)])
-    assert abs(math.degrees(math.atan2(newcomer[1], newcomer[0])) - bearing) > 12
-    target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS, newcomer), horizon=wall))
-    assert target.status == "lost" and tid not in trk.tracks
-    assert target.look_x_m != 0 or target.look_y_m != 0  # the search goes on, as for a loss
-
-
-def test_a_miss_in_plain_view_past_the_budget_ends_the_hidden_guess():
-    """Past the budget only the occlusion keeps the track; when the laser sees through to
-    where it should be and nobody is there, the guess is wrong: lost at once (before the
-    budget the same miss only counts, as the thesis says)."""
-    trk = Tracker(TrackerSettings(occlusion_max_s=3.0))
-    tid, outputs, k = _hidden_walk_with_vision(trk, 10)
-    assert outputs[-1].status == "coasting" and outputs[-1].misses == 10
-    still_robot(trk, k * SCAN_NS)
-    target, _ = trk.step(msgspec.structs.replace(cands(k * SCAN_NS), horizon=horizon_of()))
-    assert target.status == "lost" and tid not in trk.tracks
-
-
-def test_vision_accepting_someone_inside_the_search_gate_takes_them_at_once():
-    """A person already there before the target was hidden (a bystander 0.6 m beside its
-    path) is accepted by vision while the target is searched for: taken at once (one
-    verification, not switch_votes), not counted as a switch, the hidden track gone."""
-    bystander = (2.6, 0.2)
-    trk = Tracker(TrackerSettings(occlusion_max_s=3.0, switch_votes=3))
-    tid, outputs, k = _hidden_walk_with_vision(trk, 10, extra=[bystander])
-    assert outputs[-1].status == "coasting" and outputs[-1].track_id == tid
-    other = next(t for t in trk.tracks if t != tid)
-    trk.add_verification(
-        verification((k - 1) * SCAN_NS, [bystander], chosen=0, distances=[0.3], threshold=0.8)
-    )
-    still_robot(trk, k * SCAN_NS)
-    target, _ = trk.step(
-        msgspec.structs.replace(cands(k * SCAN_NS, bystander), horizon=horizon_of([(-60, 0, 1.5)]))
-    )
-    assert target.status == "tracking" and target.track_id == other
-    assert tid not in trk.tracks and trk.target_switches == 0
-
-
 @pytest.mark.parametrize(
     ("settings", "beside", "taken"),
     [
-        ({"front_margin_m": 0.2}, True, False),
-        ({"front_margin_m": None}, True, True),
-        ({"front_approach_factor": 2.0}, False, False),
-        ({"front_approach_factor": None}, False, True),
+        ({"association": AssociationSettings(front_margin_m=0.2)}, True, False),
+        ({"association": AssociationSettings(front_margin_m=None)}, True, True),
+        ({}, False, True),
     ],
 )
 def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(settings, beside, taken):
-    """front_margin_m: the target stands 2 m ahead, a passer-by's track beside it; the
+    """association.front_margin_m: the target stands 2 m ahead, a passer-by's track beside it; the
     passer-by crosses 0.3 m in front of the target, on its bearing, hiding it. The target's
     track (gate 0.4 m, the thesis's, as in that run) coasts instead of taking the passer-by,
-    and takes the target back when it shows again. Off: it takes the passer-by.
-    front_approach_factor: the same with nobody tracking the passer-by before (beside=False)
-    -- the standing target's own walk cannot explain a 0.3 m jump towards the laser; without
-    it (the ninth session's rule) a passer-by no other track holds is taken."""
-    trk = following_at_two(reject_votes=0, estimator_settings={"gate_m": 0.4}, **settings)
+    and takes the target back when it shows again. Off: it takes the passer-by. A passer-by
+    no other track holds (beside=False) is taken: alone, it may be the target coming closer."""
+    trk = following_at_two(
+        estimator_settings={"gate_m": 0.4}, **settings, identity=IdentitySettings(reject_votes=0)
+    )
     others = [(1.75, 0.35)] if beside else []
     for k in range(1, 5):
         still_robot(trk, k * SCAN_NS)
@@ -1762,12 +1555,10 @@ def test_someone_passing_in_front_of_the_target_is_not_taken_for_it(settings, be
         assert target.x_m == pytest.approx(2.0, abs=0.1)
 
 
-@pytest.mark.parametrize("factor", [None, 2.0])
-def test_a_target_walking_briskly_towards_the_robot_is_still_taken(factor):
-    """front_margin_m: alone, a candidate in front of the target's (lagging) estimate is the
-    target coming closer -- 1.5 m/s straight at the robot is taken every scan (with
-    front_approach_factor too: the walk explains the jump)."""
-    trk = Tracker(TrackerSettings(acquire="nearest", front_approach_factor=factor))
+def test_a_target_walking_briskly_towards_the_robot_is_still_taken():
+    """association.front_margin_m: alone, a candidate in front of the target's (lagging) estimate
+    is the target coming closer -- 1.5 m/s straight at the robot is taken every scan."""
+    trk = Tracker(TrackerSettings(acquire="nearest"))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         target, _ = trk.step(cands(k * SCAN_NS, (3.0 - 0.18 * k, 0.0)))
@@ -1775,69 +1566,17 @@ def test_a_target_walking_briskly_towards_the_robot_is_still_taken(factor):
             assert target.status == "tracking"
 
 
-@pytest.mark.parametrize("factor", [None, 2.0])
-def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan(factor):
-    """front_margin_m: a target walking at 1.5 m/s straight at the robot, missed for one scan,
-    is taken back at once although it is then 0.25 m nearer than its coasting estimate (no
-    other track holds it). Blocking candidates in front of a coasting target also when no
-    other track holds them (tried in the eleventh session against a passer-by taken for the
-    hidden target) kept this target coasting for every scan after; front_approach_factor
-    allows for the target's own walk towards the robot."""
-    trk = Tracker(TrackerSettings(acquire="nearest", front_approach_factor=factor))
+def test_a_target_walking_towards_the_robot_is_taken_back_after_a_missed_scan():
+    """association.front_margin_m: a target walking at 1.5 m/s straight at the robot, missed for
+    one scan, is taken back at once although it is then 0.25 m nearer than its coasting estimate (no
+    other track holds it, so the candidate is not blocked)."""
+    trk = Tracker(TrackerSettings(acquire="nearest"))
     for k in range(12):
         still_robot(trk, k * SCAN_NS)
         seen = () if k == 8 else ((3.0 - 0.18 * k, 0.0),)
         target, _ = trk.step(cands(k * SCAN_NS, *seen))
         if k > 1:
             assert target.status == ("coasting" if k == 8 else "tracking")
-
-
-@pytest.mark.parametrize(
-    ("offset", "legs", "expected_x"), [(0.1, 1, 2.0), (0.0, 1, 1.9), (0.1, 2, 1.9)]
-)
-def test_a_leg_seen_alone_stands_for_a_person_centred_behind_it(offset, legs, expected_x):
-    """lone_leg_offset_m: a person standing 2 m ahead shows only the near leg, 1.9 m away: the
-    estimate settles 0.1 m beyond it, at 2.0 m. The thesis (0) stays on the leg; a two-leg
-    candidate is the person's centre as it is."""
-
-    def seen(stamp_ns):
-        if legs == 1:
-            leg = [Leg(x_m=1.9, y_m=0.0, first_beam=10, last_beam=14)]
-        else:
-            leg = [Leg(x_m=1.9, y_m=-0.1, first_beam=10, last_beam=14),
-                   Leg(x_m=1.9, y_m=0.1, first_beam=20, last_beam=24)]  # fmt: skip
-        c = Candidate(x_m=1.9, y_m=0.0, range_m=1.9, bearing_rad=0.0, legs=leg)
-        return PersonCandidates(
-            stamp_ns=stamp_ns, frame_id="base_laser", n_beams=100, candidates=[c]
-        )
-
-    trk = Tracker(
-        TrackerSettings(acquire="nearest", lone_leg_offset_m=offset, lone_leg_output_m=0.0)
-    )
-    for k in range(30):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(seen(k * SCAN_NS))
-    assert target.status == "tracking"
-    assert target.x_m == pytest.approx(expected_x, abs=0.03)
-
-
-def test_a_lone_leg_is_not_moved_out_towards_someone_near_it():
-    """lone_leg_clear_m: with another person 0.6 m behind, the lone leg is taken as it is (moved
-    outwards, it pulled the target towards whoever walked behind it)."""
-
-    def seen(stamp_ns):
-        leg = [Leg(x_m=1.9, y_m=0.0, first_beam=10, last_beam=14)]
-        near = Candidate(x_m=1.9, y_m=0.0, range_m=1.9, bearing_rad=0.0, legs=leg)
-        behind = Candidate(x_m=2.5, y_m=0.0, range_m=2.5, bearing_rad=0.0)
-        return PersonCandidates(
-            stamp_ns=stamp_ns, frame_id="base_laser", n_beams=100, candidates=[near, behind]
-        )
-
-    trk = Tracker(TrackerSettings(acquire="nearest", lone_leg_offset_m=0.1, lone_leg_output_m=0.0))
-    for k in range(30):
-        still_robot(trk, k * SCAN_NS)
-        target, _ = trk.step(seen(k * SCAN_NS))
-    assert target.status == "tracking" and target.x_m == pytest.approx(1.9, abs=0.03)
 
 
 def _one_or_two_legs(stamp_ns, legs, x_m=1.9, behind=None):
@@ -1876,10 +1615,9 @@ def test_lone_leg_output_reports_the_centre_behind_a_lone_leg_and_keeps_the_filt
 
 
 def test_lone_leg_output_leaves_whom_the_target_takes_unchanged():
-    """Unlike lone_leg_offset_m (test_a_lone_leg_is_not_moved_out_towards_someone_near_it's
-    case without lone_leg_clear_m), reporting the centre does not move the filter towards
-    someone 0.35 m behind the lone leg: the association of every scan, and so the filter's
-    estimate, is the thesis's, bit for bit."""
+    """Reporting the centre does not move the filter towards someone 0.35 m behind the lone
+    leg: the association of every scan, and so the filter's estimate, is the thesis's, bit for
+    bit."""
     runs = {}
     for name, extra in (("thesis", {"lone_leg_output_m": 0.0}), ("output", {})):  # (default 0.1)
         trk = Tracker(TrackerSettings(acquire="nearest", seed=3, **extra))
@@ -1892,11 +1630,6 @@ def test_lone_leg_output_leaves_whom_the_target_takes_unchanged():
         runs[name] = (seen, target)
     assert runs["output"][0] == runs["thesis"][0]
     assert runs["output"][1].x_m > runs["thesis"][1].x_m + 0.02  # (reported farther out)
-
-
-def test_lone_leg_output_and_offset_are_not_both_accepted():
-    with pytest.raises(ValueError, match="set one"):
-        TrackerSettings(lone_leg_output_m=0.1, lone_leg_offset_m=0.1)
 
 
 @pytest.mark.parametrize(("gate_m", "takes_passer_by"), [(0.4, True), (None, False)])
@@ -1928,37 +1661,20 @@ def test_a_passer_by_0_38_m_from_the_hidden_target_is_not_taken_by_its_track(
     assert (target.status == "coasting" and moved < 0.1) == (not takes_passer_by)
 
 
-@pytest.mark.parametrize("out_of_view", [20.0, None])
-def test_look_out_of_view_deg_looks_at_a_walker_near_the_point_the_camera_there_does_not_show(
-    out_of_view,
-):
-    """look_out_of_view_deg: past look_max_s the camera looks at a walker within
-    look_wide_gate_m of where the lost target should be (about (2, 2.5), bearing 50 deg) whose
-    bearing is ~25 deg from it -- out of the view of the camera pointed there -- and not at a
-    walker the camera pointed there shows (bearing 50 deg). Off: at neither."""
-    looked = {}
-    for name, start in (("out of view", (2.9, 1.2)), ("in view", (1.5, 1.8))):
-        # walking at 0.33 m/s
-        target, looks = _looks_past_look_max_s(start, 0.04, look_out_of_view_deg=out_of_view)
-        assert target.status == "lost"
-        looked[name] = max(looks) >= 0
-    assert looked == {"out of view": out_of_view is not None, "in view": False}
-
-
 @pytest.mark.parametrize(("within", "reach"), [(True, 3.5), (False, 3.5), (True, None)])
 def test_a_target_that_walked_out_of_reach_is_looked_for_where_it_comes_back(within, reach):
-    """look_within_reach (ristic_wall_corridor, seed 1, in small): the target walks away at
+    """search.within_reach (ristic_wall_corridor, seed 1, in small): the target walks away at
     0.5 m/s and is lost at 3.9 m (beyond the detector's reach, 3.5 m); its
     predicted point walks on to ~4.4 m. It comes back 5 s later at 3.06 m, accepted by vision
     at 0.65 against 0.8. Kept within the reach the point is 0.8 m from it: re-taken on that
     ordinary acceptance; off, or with candidates that give no reach, 1.6 m away (past
-    look_wide_gate_m): only a close match (0.45) would re-take it."""
+    search.wide_gate_m): only a close match (0.45) would re-take it."""
 
     def seen(stamp_ns, *xy):
         return msgspec.structs.replace(cands(stamp_ns, *xy), reach_m=reach)
 
     trk = following_at_two(
-        look_gate_m=0.5, look_max_s=1.0, look_wide_max_distance=0.45, look_within_reach=within
+        search=SearchSettings(gate_m=0.5, max_s=1.0, wide_max_distance=0.45, within_reach=within)
     )
     for k in range(1, 16):
         x = 2.0 + 0.06 * k

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import math
 import time
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -188,6 +190,34 @@ def test_bad_estimator_setting_is_a_settings_error():
     # while the settings load, before any node or network exists
     with pytest.raises(SettingsError, match="unknown estimator 'nope'; valid names"):
         load_settings(TrackerNodeSettings, overrides=["estimator=nope"])
+
+
+def test_every_retired_tracker_setting_is_refused_with_its_own_message():
+    """Each key the tracker lists as retired is no setting any more, and naming it fails
+    with the table's message rather than an unknown-field error."""
+    retired = TrackerNodeSettings.retired_settings
+    assert retired and not set(retired) & set(TrackerNodeSettings.__struct_fields__)
+    defaults = msgspec.to_builtins(TrackerNodeSettings())
+    for key, note in retired.items():
+        with pytest.raises(SettingsError) as err:
+            load_settings(TrackerNodeSettings, None, [f"{key}=1"])
+        assert str(err.value) == f"--set: {key} {note}"
+        if "renamed" in note:  # the new key exists and takes a value
+            new = note.split("set ")[1].split()[0]
+            section, name = new.split(".")
+            value = defaults[section][name]
+            loaded = load_settings(TrackerNodeSettings, None, [f"{new}={json.dumps(value)}"])
+            assert msgspec.to_builtins(getattr(loaded, section))[name] == value
+
+
+def test_a_nested_setting_is_set_by_its_dotted_key_or_a_section_in_a_file(tmp_path):
+    cfg = tmp_path / "tracker.yaml"
+    cfg.write_text("search: {gate_m: 0.8}\nidentity: {switch_votes: 3}\n")
+    s = load_settings(TrackerNodeSettings, cfg, ["search.dwell_s=2"])
+    assert (s.search.gate_m, s.search.dwell_s, s.identity.switch_votes) == (0.8, 2.0, 3)
+    assert s.search.max_s == 4.0  # the section's other defaults stay
+    with pytest.raises(SettingsError, match=r"look_gate_m was renamed: set search\.gate_m instead"):
+        load_settings(TrackerNodeSettings, None, ["look_gate_m=0.8"])
 
 
 def test_the_tracker_keeps_the_target_model_for_a_restarted_vision_worker(pipeline):

@@ -1,10 +1,11 @@
-"""Per-person estimators, chosen by name (issue 6; DESIGN.md "Presets").
+"""Per-person estimators, chosen by name (DESIGN.md "Presets").
 
 ``estimator_factory("particle")`` returns a callable ``(x_m, y_m, rng) -> Estimator`` that the
 tracker calls for each new track. Estimators are plugins of the entry-point group
 ``followbot.estimators`` (the built-in ones are declared in pyproject.toml), so another package
 can add its own: a class with ``name``, ``settings_type`` (a frozen msgspec Struct) and the
-methods of :class:`~.base.Estimator`, constructed as ``cls(x_m, y_m, settings, rng)``.
+members of :class:`~.base.Estimator` (deriving from :class:`~.base.EstimatorBase` supplies the
+batch steps and the optional parts), constructed as ``cls(x_m, y_m, settings, rng)``.
 An unknown name fails with the list of valid ones.
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 
 from followbot.services.runtime.plugins import Registry
 
-from .base import Estimator, wrap_angle
+from .base import Estimator, EstimatorBase, check_estimator, wrap_angle
 from .kalman_window import KalmanWindowEstimator, KalmanWindowSettings
 from .nearest import NearestFeatureEstimator, NearestSettings
 from .particle import (
@@ -32,6 +33,7 @@ from .ukf import UKFEstimator, UKFSettings
 __all__ = [
     "BUILTIN",
     "Estimator",
+    "EstimatorBase",
     "KalmanWindowEstimator",
     "KalmanWindowSettings",
     "NearestFeatureEstimator",
@@ -40,6 +42,7 @@ __all__ = [
     "ParticleSettings",
     "UKFEstimator",
     "UKFSettings",
+    "check_estimator",
     "estimator_factory",
     "registry",
     "sorted_copy_resample",
@@ -69,6 +72,7 @@ def _load(name: str) -> type:
 def estimator_factory(name: str = "particle", settings: Any = None) -> EstimatorFactory:
     """A constructor of ``name``'s estimators with ``settings`` (a Struct or a mapping)."""
     cls = _load(name)
+    check_estimator(cls)
     settings_type = cls.settings_type
     if settings is None:
         s = settings_type()

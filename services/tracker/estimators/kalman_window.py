@@ -43,6 +43,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
+from .base import EstimatorBase
+
 __all__ = ["KalmanWindowEstimator", "KalmanWindowSettings"]
 
 
@@ -70,7 +72,7 @@ class KalmanWindowSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
             )
 
 
-class KalmanWindowEstimator:
+class KalmanWindowEstimator(EstimatorBase):
     """One person's Kalman filter and search window (seed 004). ``rng`` is unused."""
 
     name = "kalman_window"

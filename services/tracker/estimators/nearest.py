@@ -44,6 +44,8 @@ from typing import Annotated, Literal
 import msgspec
 import numpy as np
 
+from .base import EstimatorBase
+
 __all__ = ["NearestFeatureEstimator", "NearestSettings"]
 
 
@@ -65,7 +67,7 @@ class NearestSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """sigma_p of the reported covariance right after an update (nominal)."""
 
 
-class NearestFeatureEstimator:
+class NearestFeatureEstimator(EstimatorBase):
     """One person at the nearest feature in reach (seed 003). ``rng`` is unused."""
 
     name = "nearest"

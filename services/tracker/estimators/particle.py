@@ -22,7 +22,7 @@ allocated per particle. Randomness comes from a seeded ``numpy.random.Generator`
 With several people the tracker calls the class's batch steps (:meth:`ParticleEstimator.
 motion_all`, :meth:`~ParticleEstimator.update_all`, :meth:`~ParticleEstimator.settle_all`):
 the clouds are stacked into one (T, 4, m) array and every step is the same handful of numpy
-calls for all T tracks, so ten people cost little more than one (issue 8's 10-person latency).
+calls for all T tracks, so ten people cost little more than one.
 Each track still draws from its own Generator in the same order, so a batch step gives the
 same numbers as the per-track one up to floating-point rounding of the stacked matrix products.
 
@@ -45,6 +45,8 @@ from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
+
+from .base import EstimatorBase
 
 __all__ = [
     "ParticleEstimator",
@@ -79,11 +81,11 @@ class ParticleSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     gate_m: Annotated[float, msgspec.Meta(gt=0)] = 0.35
     """Association gate around the prediction (m). The thesis's 400 mm (4.3, criterion 3: a
     leg within 400 mm of the prediction) is the laser detector's gate and stays there; the
-    track's is 0.35 m (nineteenth session), a walker's step at 1.5 m/s in 120 ms (0.18 m)
-    plus the 0.13 m a lone leg lies off a person's centre: at 0.4 a passer-by who hid the
-    target for a scan 0.38 m from its prediction took its track (side_by_side seed 3,
-    crowd_ten seed 2: the only two runs of 76 on a wrong person); 0.35 removed both and
-    changed no count, 0.3 lost crowd_ten seed 6 (docs/tracker_log.md)."""
+    track's is 0.35 m, a walker's step at 1.5 m/s in 120 ms (0.18 m) plus the 0.13 m a lone
+    leg lies off a person's centre: wider, a passer-by who hides the target for a scan just
+    beyond a step from its prediction takes its track.
+    docs/tracker_log.md: at 0.4 two of 76 runs spent a scan on a wrong person, at 0.3 a crowd
+    lost its target."""
     gate_growth: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """While coasting the gate grows by gate_growth * sigma_v * dT * sqrt(misses), the
     spread the random walk adds to the cloud."""
@@ -130,7 +132,7 @@ def _gather_base(tracks: int, m: int) -> np.ndarray:
     return base
 
 
-class ParticleEstimator:
+class ParticleEstimator(EstimatorBase):
     """One person's particle cloud (thesis 3.6.2). ``rng`` must be a seeded Generator."""
 
     name = "particle"
@@ -348,8 +350,10 @@ class ParticleEstimator:
         rotation: np.ndarray | None,
         translation: np.ndarray | None,
         dt_s: float,
+        misses: Sequence[int] = (),
     ) -> None:
-        """:meth:`ego_motion` (when ``rotation`` is given) then :meth:`predict`, for all."""
+        """:meth:`ego_motion` (when ``rotation`` is given) then :meth:`predict`, for all (the
+        prediction does not depend on ``misses``)."""
         if not cls._batchable(estimators):
             for e in estimators:
                 if rotation is not None:

@@ -25,7 +25,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from .base import wrap_angle
+from .base import EstimatorBase, wrap_angle
 
 __all__ = ["UKFEstimator", "UKFSettings"]
 
@@ -66,7 +66,7 @@ def _z_mean(sigmas: np.ndarray, wm: np.ndarray) -> np.ndarray:
     return np.array([math.atan2(s, c), float(np.sum(sigmas[:, 1] * wm))])
 
 
-class UKFEstimator:
+class UKFEstimator(EstimatorBase):
     """One person's UKF (seed 002). ``rng`` is unused (the filter is deterministic)."""
 
     name = "ukf"
