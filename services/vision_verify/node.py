@@ -792,5 +792,11 @@ def setup(node: Node, settings: VisionVerifySettings) -> VisionVerify:
     return svc
 
 
+def check(settings: VisionVerifySettings) -> None:
+    """The verifier is built as the service will build it (a face verifier loads its cascade
+    file), so `followbot up --check` reports a missing or bad file before anything starts."""
+    make_verifier(settings.verifier, settings.verifier_settings)
+
+
 def main(argv: list[str] | None = None) -> int:
-    return service_main("vision_verify", VisionVerifySettings, setup, argv, __doc__)
+    return service_main("vision_verify", VisionVerifySettings, setup, argv, __doc__, check)
