@@ -106,14 +106,11 @@ def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> 
 def check(settings: LaserLegsSettings) -> None:
     """Build the configured detectors and load every file they read (a learned detector's
     model), before any network is opened: a missing or bad file is a ValueError naming it."""
-    for while_lost in (False, True):
-        if while_lost and settings.detector_settings_while_lost is None:
-            continue
-        detector = build_detector(settings, while_lost=while_lost)
-        inner = getattr(detector, "inner", detector)  # under the robot-body filter
-        check_files = getattr(inner, "check", None)
-        if callable(check_files):
-            check_files()
+    detector = build_detector(settings)
+    inner = getattr(detector, "inner", detector)  # under the robot-body filter
+    check_files = getattr(inner, "check", None)
+    if callable(check_files):
+        check_files()
 
 
 def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
