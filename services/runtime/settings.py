@@ -133,7 +133,11 @@ def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> ty
             spec.append((f.name, f.type, msgspec.field(default_factory=f.default_factory)))
         else:
             spec.append((f.name, f.type, f.default))
-    retired = {"retired_settings": dict(getattr(core, "retired_settings", None) or {})}
+    retired = {
+        "retired_settings": dict(getattr(core, "retired_settings", None) or {}),
+        # where the fields are declared (and documented): followbot settings reads it
+        "core_settings": core,
+    }
     return msgspec.defstruct(
         name,
         spec,
