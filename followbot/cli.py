@@ -109,7 +109,7 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "status": ("followbot.status", "main", "every live service of a robot: health, host, pid"),
     "target": ("followbot.target", "main", "acquire / reset / save / load the target model"),
     "eval": ("followbot.eval_cli", "main", "scenarios x presets through the pipeline: report"),
-    "sweep": ("followbot.sweep", "main", "every scenario over several seeds: the closed-loop figures"),
+    "sweep": ("followbot.sweep", "main", "every scenario over several seeds: closed-loop figures"),
     "track": ("followbot.track", "main", "run the pipeline over a recording; tracks to CSV"),
     "appearance": (
         "followbot.appearance",

@@ -16,6 +16,7 @@ import argparse
 import ast
 import importlib
 import inspect
+import itertools
 import math
 import sys
 import textwrap
@@ -110,7 +111,7 @@ def _field_docs(cls: type) -> dict[str, str]:
                 above = _comment_above(lines, a.lineno - 1)
                 if above or trailing:
                     docs[target.id] = " ".join(x for x in (above, trailing) if x)
-        for a, b in zip(body, body[1:], strict=False):
+        for a, b in itertools.pairwise(body):
             target = getattr(a, "target", None)
             if (
                 isinstance(a, ast.AnnAssign)
@@ -264,7 +265,10 @@ def settings_markdown() -> str:
     common = frozenset(f.name for f in mi.type_info(base).fields)
     services = service_settings()
     roles = plugin_roles()
-    lines_counts = ["| service | top-level settings | all settings (nested expanded) |", "|---|---|---|"]
+    lines_counts = [
+        "| service | top-level settings | all settings (nested expanded) |",
+        "|---|---|---|",
+    ]
     sections = []
     total = len(list(walk(base)))
     for name, cls in services.items():
@@ -276,7 +280,8 @@ def settings_markdown() -> str:
         retired = getattr(cls, "retired_settings", None) or {}
         retired = {**retired, **_nested_retired(cls)}
         if retired:
-            text += ["", "Retired keys (a settings file naming one is refused with this message):", ""]
+            text += ["", "Retired keys (a settings file naming one is refused with this message):"]
+            text += [""]
             text += [f"- `{k}`: {' '.join(v.split())}" for k, v in sorted(retired.items())]
         for role, (service, key, overrides) in _ROLES.items():
             if service != name:
@@ -355,4 +360,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())
-
