@@ -33,17 +33,20 @@ def test_every_service_and_plugin_is_in_the_reference():
             assert f": {plugin}\n" in text, (role, plugin)
 
 
+# at module level: msgspec resolves the (string) annotations in the module's namespace
+class _Inner(msgspec.Struct, kw_only=True):
+    gate_m: float = 0.35
+    """How far a candidate may be."""
+
+
+class _Outer(msgspec.Struct, kw_only=True):
+    # A comment above is a description too.
+    name: str = "x"
+    inner: _Inner = msgspec.field(default_factory=_Inner)
+
+
 def test_nested_settings_are_listed_with_their_dotted_key():
-    class Inner(msgspec.Struct, kw_only=True):
-        gate_m: float = 0.35
-        """How far a candidate may be."""
-
-    class Outer(msgspec.Struct, kw_only=True):
-        # A comment above is a description too.
-        name: str = "x"
-        inner: Inner = msgspec.field(default_factory=Inner)
-
-    rows = {s.key: s for s in settingsdoc.walk(Outer)}
+    rows = {s.key: s for s in settingsdoc.walk(_Outer)}
     assert set(rows) == {"name", "inner.gate_m"}
     assert rows["inner.gate_m"].default == "0.35"
     assert rows["inner.gate_m"].doc == "How far a candidate may be."

@@ -58,7 +58,11 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     # thesis 4.6: r < 1.2 m stop, 1.2..1.5 m the person's speed, > 1.5 m v_max = 0.75 m/s
     stop_distance_m: Annotated[float, msgspec.Meta(ge=0)] = 1.2
     match_distance_m: Annotated[float, msgspec.Meta(ge=0)] = 1.5
+    """From stop_distance_m up to this range (m) the base matches the person's speed; beyond
+    it, it drives at max_speed_mps (thesis 4.6)."""
     max_speed_mps: _Pos = 0.75
+    """v_max (m/s): the speed beyond match_distance_m and the cap of every command (thesis
+    4.6); at most hardware_max_speed_mps."""
     # thesis 5.2.5: rotation at most 100 deg/s; pan 90 deg/s within +-100 deg
     max_turn_deg_s: _Pos = 100.0
     hardware_max_speed_mps: Annotated[float, msgspec.Meta(gt=0, le=MAX_LINEAR_MPS)] = 1.0
@@ -69,13 +73,18 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     ] = 180.0
     """The base's own turn-rate cap: max_turn_deg_s may not exceed it."""
     pan_rate_deg_s: _Pos = 90.0
+    """The camera pan turns at most this fast (deg/s; thesis 5.2.5)."""
     pan_limit_deg: Annotated[float, msgspec.Meta(ge=0, le=180)] = 100.0
+    """The camera pans at most this far either side of ahead (deg; thesis 5.2.5)."""
     turn_gain_per_s: _Pos = 1.5
     """w* = gain * theta: the base turns to the heading in about 1/gain seconds."""
     accel_mps2: _Pos = 0.5
+    """Speeding up: |v| grows by at most this much per second (m/s^2)."""
     decel_mps2: _Pos = 2.0
     """Braking (|v| decreasing) may be harder than speeding up."""
     turn_accel_deg_s2: _Pos = 300.0
+    """The turn rate changes by at most this much per second (deg/s^2; the simulator's robot
+    has the same limit)."""
     reverse: bool = False
     """Never drive backwards unless allowed (the thesis robot only follows)."""
     pan_to_look: bool = True
@@ -96,11 +105,17 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     body_radius_m: _Pos = 0.25
     """The base seen from above as a disc (the simulator's robot.radius_m)."""
     obstacle_margin_m: Annotated[float, msgspec.Meta(ge=0)] = 0.05
+    """avoid_obstacles: clearance (m) the guard keeps between the body and any return, on
+    top of body_radius_m."""
     avoid_horizon_s: _Pos = 1.0
     """How far ahead the arc is checked: this many seconds of travel plus the braking
     distance (at decel_mps2)."""
     avoid_turn_candidates: Annotated[int, msgspec.Meta(ge=2, le=1000)] = 21
+    """avoid_obstacles: how many turn rates, evenly spaced from -max_turn_deg_s to
+    +max_turn_deg_s, the guard tries when the command's own arc is blocked."""
     avoid_min_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.05
+    """avoid_obstacles: a command slowed to stop short below this speed (m/s) stops instead
+    (reason avoid_stop; turning on the spot goes on)."""
     avoid_min_progress: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.5
     """A way round must bring the base at least this share of the command's own gain nearer
     the target (avoid.py)."""

@@ -38,10 +38,16 @@ class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_f
     """No target for this long (wall clock) -> brake to zero. 0 disables (lock-step on a slow
     machine, where wall time between scans means nothing)."""
     watchdog_period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.05
+    """Seconds between two checks of the watchdog (stale target, tracker gone); also the dt
+    of its first braking command."""
     tracker_service: str = "tracker"
+    """The service name whose liveliness token the watchdog watches: when it disappears, the
+    base brakes (reason tracker_gone)."""
     nominal_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
     """dt for the first target and after gaps longer than max_dt_s."""
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+    """The limits use the time between two targets' stamps as dt, up to this (s); a longer
+    gap counts as nominal_dt_s."""
     scan_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 0.1
     """avoid_obstacles: a target whose scan has not arrived yet (the tracker's answer can
     overtake the laser's own message) waits this long (wall clock) for it; then it is

@@ -54,6 +54,8 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
     """A target older than this (scan stamp minus target stamp) is not used for gating."""
     odometry_max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.2
+    """Criterion 3's ego-motion: the robot's pose at a scan stamp past the last odometry is
+    extrapolated with its last twist for at most this long (s); later, no prediction."""
     lockstep_target_wait_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.0
     """Lock-step runs: hold a scan until the tracker's target for the previous scan has
     arrived (it races the next scan over another link), at most this long. 0 (live): never

@@ -87,6 +87,7 @@ class AcquireSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     (RMSE 0.231 -> 0.075 m, tracked 0.75 -> 1.00), the other 75 do not change
     (docs/tracker_log.md). None: off."""
     alone_s: float = 0.5
+    """The window (s) in which the mover must have moved alone (see crowd_pairs)."""
     crowd_pairs: int = 2
     """The mover must have moved alone: ``crowd_pairs`` or more scan pairs within the last
     ``alone_s`` that saw two movers, or one mover somewhere else (farther than

@@ -96,14 +96,20 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     reject: bool = True
     """False: always take the most alike candidate (the thesis's rule)."""
     pair_tolerance_s: Annotated[float, msgspec.Meta(ge=0)] = 0.06
+    """A scan's candidates are judged on the image nearest their stamp, if that is within
+    this (s); else the scan waits for one (or is dropped)."""
     max_lag_s: _Pos = 0.5
     """Scans further than this behind the newest one are dropped unjudged."""
     scan_buffer: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 32
+    """At most this many candidates messages wait for their image; beyond, the oldest are
+    dropped unjudged (counted as scan_stale)."""
     answer_every_scan: bool = False
     """Lock-step: publish exactly one verification per candidates message."""
     image_wait_s: _Pos = 0.2
     """Lock-step: how long a scan waits for an image before an empty answer."""
     min_rect_side_px: Annotated[int, msgspec.Meta(ge=2)] = 8
+    """A candidate whose image rectangle (clipped to the image) has a side shorter than this
+    (px) is not judged (too_small): too few pixels for a histogram."""
     max_rect_width_factor: _Pos = 3.0
     """Candidates whose rectangle is wider than this many image widths are skipped."""
     min_visible_fraction: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = 0.5
@@ -122,6 +128,8 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only (before
     the fourteenth session)."""
     occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
+    """With occlusion_margin_m: the half width (m) of the body a leg-like return in front of
+    a candidate stands for."""
     occlusion_abstain_fraction: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = 0.25
     """With occlusion_margin_m: the whole rectangle is judged as before, and a candidate is
     reported unjudged only when it would be rejected and those returns cover at least this
@@ -139,6 +147,8 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     alive (or ``recover_wait_s`` after start) found no model, and is dropped if a model is
     recovered first (docs/vision_verify.md "The target model")."""
     acquire_timeout_s: _Pos = 30.0
+    """An acquisition (an acquire command, or auto_acquire) that has learnt no model after
+    this long (s) gives up, with a warning (counted as acquire_timeout)."""
     models_dir: str = ""
     """Folder of the files that save/load commands name; nothing outside it is read or
     written. "": $XDG_DATA_HOME/followbot/models (~/.local/share/followbot/models). A
@@ -154,6 +164,7 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     query_timeout_s: _Pos = 1.0
     """How long one query waits for answers."""
     query_period_s: _Pos = 1.0
+    """Seconds between two queries for the model while this service has none."""
     model_holder: str = "tracker"
     """The service that keeps the model for a restarted worker (the tracker serves the last
     model it got): once its liveliness is seen, a query it does not answer means it holds
@@ -165,8 +176,13 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     adapt_rate: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
     """Online model update rate per confident match (0: off; e.g. 0.02)."""
     adapt_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
+    """With adapt_rate: the model is updated only from a chosen candidate at most this
+    distance from it ..."""
     adapt_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
+    """... and at least this much nearer than every other candidate."""
     adapt_publish_period_s: _Pos = 5.0
+    """With adapt_rate: an updated model is published (for the model holder) at most this
+    often (s)."""
 
 
 class CommandRefused(ValueError):

@@ -151,7 +151,9 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     pair_threshold: float = 0.05  # score of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
+    """Segments of fewer points are not classified (at least 3: the features need them)."""
     max_width_m: float = 0.6
+    """Segments wider end to end than this (m) are not classified (two legs together fit)."""
     pair_distance_m: float = 0.500  # thesis 4.3.3
     gate_m: float = 0.400  # thesis 4.3.2 criterion 3, when a prediction is given
     # static background (background.py; not in the seeds): a segment seen occupied in at least

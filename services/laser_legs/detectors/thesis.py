@@ -113,6 +113,8 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     ref_increment_rad: float = math.radians(0.5)  # thesis 4.1: 0.5 deg scanner
     ref_range_m: float = 1.5  # thesis 4.3.1: person about 1.5 m away
     scale_count_with_range: bool = True
+    """Eq. 4-4's point bounds scale with each cluster's range (the beams on a leg fall as
+    1/range, thesis Table 4.3); False: with the scanner's resolution only, at ref_range_m."""
     min_width_m: float = 0.080  # thesis 4.3.2 eq. 4-5: 80 mm < W
     max_width_m: float = 0.300  # thesis 4.3.2 eq. 4-5: W < 300 mm
     gate_m: float = 0.400  # thesis 4.3.2 eq. 4-7: 400 mm (criterion 3)
@@ -174,6 +176,7 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     does not show. In occlusion_pillar the target's legs came out beside the pillar as such
     slivers for 0.4-0.6 s before a whole leg showed (docs/laser_legs.md)."""
     min_edge_beams: int = 3
+    """edge_slivers: a sliver of fewer beams than this is not taken as a half-hidden leg."""
     edge_occluder_min_width_m: float = 0.0
     """... only behind something at least this wide end to end (0: anything that is no leg;
     e.g. 0.3, criterion 2's upper bound: no one leg, so in a crowd a person's legs do not
