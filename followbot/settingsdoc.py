@@ -278,11 +278,7 @@ def settings_markdown() -> str:
         text = [f"## {name}", "", f"`{cls.__module__}:{cls.__qualname__}`", ""]
         text.append(_table(own) if own else "Only the settings every service has.")
         retired = getattr(cls, "retired_settings", None) or {}
-        retired = {**retired, **_nested_retired(cls)}
-        if retired:
-            text += ["", "Retired keys (a settings file naming one is refused with this message):"]
-            text += [""]
-            text += [f"- `{k}`: {' '.join(v.split())}" for k, v in sorted(retired.items())]
+        text += _retired_list({**retired, **_nested_retired(cls)})
         for role, (service, key, overrides) in _ROLES.items():
             if service != name:
                 continue
@@ -291,10 +287,23 @@ def settings_markdown() -> str:
                 total += len(rows)
                 text += ["", f"### {key}: {plugin}", ""]
                 text.append(_table(rows) if rows else "No settings of its own.")
+                text += _retired_list(getattr(stype, "retired_settings", None) or {}, overrides)
         sections.append("\n".join(text))
     lines_counts.append(f"| **all, with every plugin and the common ones** | | {total} |")
     head = _INTRO.format(counts="\n".join(lines_counts), common=_table(list(walk(base))))
     return head + "\n" + "\n\n".join(sections) + "\n"
+
+
+def _retired_list(retired: dict[str, str], prefix: str = "") -> list[str]:
+    """Markdown lines listing ``retired`` keys (under ``prefix``, dotted), or none."""
+    if not retired:
+        return []
+    head = "Retired keys (a settings file naming one is refused with this message):"
+    lines = [
+        f"- `{prefix}{'.' if prefix else ''}{k}`: {' '.join(v.split())}"
+        for k, v in sorted(retired.items())
+    ]
+    return ["", head, "", *lines]
 
 
 def _nested_retired(cls: type, prefix: str = "") -> dict[str, str]:

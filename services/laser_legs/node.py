@@ -27,7 +27,7 @@ from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError, removed
 
 from .core import LegDetector, detector_clip_m, empty_candidates, horizon, scan_reach_m
-from .detectors import REGISTRY, make_detector
+from .detectors import REGISTRY, detector_settings, make_detector
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
 
@@ -92,7 +92,7 @@ def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> 
     key = "detector_settings"
     try:
         if check_only:
-            msgspec.convert(overrides, cls.settings_type)
+            detector_settings(cls.settings_type, overrides)
             return None
         detector = make_detector(settings.detector, overrides)
     except (ValueError, TypeError) as exc:
