@@ -120,13 +120,11 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] | None = 0.3
     """Beyond the thesis: what the laser sees in front of a candidate. The detector reports
     only people near the target (thesis criterion 3), so a passer-by walking between the
-    camera and the target was no candidate, and its pixels were judged as the target's: in
-    crowd_ten (own seed, 37.4 s) vision rejected the target twice (0.80, 0.85) and dropped it.
+    camera and the target is no candidate, and its pixels would be judged as the target's.
     A leg-like return of the candidates message's ``horizon`` (core.horizon_covers: a narrow
     run standing in front of its neighbours; walls and pillars are not) more than this nearer
     than a candidate stands for a body ``occluder_half_width_m`` either side; what it covers
-    is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only (before
-    the fourteenth session)."""
+    is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only."""
     occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
     """With occlusion_margin_m: the half width (m) of the body a leg-like return in front of
     a candidate stands for."""
@@ -134,12 +132,9 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     """With occlusion_margin_m: the whole rectangle is judged as before, and a candidate is
     reported unjudged only when it would be rejected and those returns cover at least this
     share of its columns: a view with someone unreported in front of it is trusted when it
-    matches, not when it rejects (the tracker then counts no rejection). Default since the
-    fourteenth session (docs/tracker_log.md), 76 closed-loop runs: tracked >= 98 % 61 -> 66 (all
-    six crowd_ten seeds 1.00), time on wrong people 1.32 -> 0.60 s, never-re-acquired
-    occlusions 8 -> 5, two-person runs with a switch 3 -> 2, RMSE <= 0.08 m unchanged (68).
-    None: cut the covered columns from the rectangle, as nearer candidates' (min_visible_
-    fraction); measured worse: crowd_ten seed 4 lost its target for good, RMSE <= 0.08 m 66."""
+    matches, not when it rejects (the tracker then counts no rejection). Default chosen by the
+    closed-loop runs of docs/tracker_log.md. None: cut the covered columns from the
+    rectangle, as nearer candidates' (min_visible_fraction; measured worse)."""
     acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
     auto_acquire: bool = False
     """Learn a model on start, without a command (one mover, still robot), when nobody on the

@@ -140,13 +140,10 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """
 
     model_path: str = ""  # "" = the model shipped with the package
-    # thresholds chosen with the background and track settings below by train.py's rule of the
-    # eighth session (--min-recall 0.92: the fewest validation false persons at >= 0.92
-    # validation recall; the background chosen again under the tracks; docs/laser_legs.md).
-    # The earlier rule (the highest validation recall within 0.4 false persons/scan) chose the
-    # background 2 s / 0.9 / 0.15 and these thresholds: evaluate's `learned_maxrecall`; with
-    # the background but no tracks 0.25 / 0.10: `learned_notrack`; with neither 0.35 / 0.15:
-    # `learned_nobg`
+    # thresholds chosen with the background and track settings below by train.py's rule
+    # --min-recall 0.92 (the fewest validation false persons at >= 0.92 validation recall;
+    # the background chosen again under the tracks; docs/laser_legs.md, which also compares
+    # evaluate's variants `learned_maxrecall`, `learned_notrack` and `learned_nobg`)
     threshold: float = 0.10  # score for a one-leg person (train.py, cross-validation)
     pair_threshold: float = 0.05  # score of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
