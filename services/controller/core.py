@@ -33,7 +33,7 @@ base stops (reason ``no_scan``; turning on the spot and the camera go on).
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 import numpy as np
@@ -53,6 +53,14 @@ MEMORY_CELL_M = 0.02
 
 
 class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    retired_settings: ClassVar[dict[str, str]] = {
+        "laser_mount_x_m": (
+            "was replaced by laser_mount, one setting every stage reads: write "
+            "laser_mount: {x_m: X, y_m: Y, yaw_deg: DEGREES} at the top of your settings "
+            "(docs/robot.md)"
+        ),
+    }
+
     # thesis 4.6: turn only beyond [-6 deg, +6 deg]
     dead_band_deg: Annotated[float, msgspec.Meta(ge=0, le=180)] = 6.0
     # thesis 4.6: r < 1.2 m stop, 1.2..1.5 m the person's speed, > 1.5 m v_max = 0.75 m/s
@@ -172,8 +180,6 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     avoid_ignore_target_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
     """Returns within this of the target's estimate are the target's legs, not obstacles
     (the rule stops 1.2 m short of them anyway)."""
-    laser_mount_x_m: float = 0.0
-    """The laser's position ahead of the base origin."""
 
     def __post_init__(self) -> None:
         if self.max_speed_mps > self.hardware_max_speed_mps:
@@ -400,8 +406,8 @@ class FollowController:
                         keep = None
                         if view is not None:
                             keep = (
-                                view[1] + ESCAPE_VIEW_MARGIN_RAD,
-                                view[2] - ESCAPE_VIEW_MARGIN_RAD,
+                                view.lo_rad + ESCAPE_VIEW_MARGIN_RAD,
+                                view.hi_rad - ESCAPE_VIEW_MARGIN_RAD,
                             )
                         goal = self.guard.escape_goal(obstacles, xy, memory, True, keep)
                         self._escape_goal, self._escape_age_s = goal, 0.0

@@ -127,9 +127,9 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
         publish(c, t.stamp_ns)
 
     def on_scan(scan: LaserScan) -> None:
-        pts = scan_points(scan, settings.laser_mount_x_m)
+        pts = scan_points(scan, settings.laser_mount)  # base frame
         scans = st["scans"]
-        scans[scan.stamp_ns] = (pts, scan_view(scan, settings.laser_mount_x_m))
+        scans[scan.stamp_ns] = (pts, scan_view(scan, settings.laser_mount))
         while len(scans) > 8:
             del scans[min(scans)]
         pending = st["pending"]

@@ -12,12 +12,14 @@ import pytest
 from followbot.schemas import LaserScan, TrackState
 from followbot.services.controller.avoid import (
     ObstacleGuard,
+    ScanView,
     moved_into_frame,
     outside_view,
     scan_points,
     scan_view,
 )
 from followbot.services.controller.core import ControllerSettings, FollowController
+from followbot.services.runtime.mount import LaserMount
 from followbot.services.sim.scenario import load_builtin
 from followbot.services.sim.simulation import Simulation
 
@@ -49,10 +51,14 @@ def test_scan_points_drop_no_returns_and_apply_the_mount():
         r, stamp_ns=0, angle_min_rad=-math.pi / 2, angle_increment_rad=math.pi / 6,
         range_min_m=0.05, range_max_m=30.0,
     )  # fmt: skip
-    pts = scan_points(scan, mount_x_m=0.1)
+    pts = scan_points(scan, LaserMount(x_m=0.1))
     assert pts.shape == (2, 2)
     assert pts[0] == pytest.approx([0.1, -1.0])
     assert pts[1] == pytest.approx([0.1 + 2.0 * math.cos(math.pi / 2), 2.0])
+    # off-centre and turned 90 deg left: the beam to the laser's right points ahead of the base
+    turned = scan_points(scan, LaserMount(x_m=0.5, y_m=-0.2, yaw_deg=90.0))
+    assert turned[0] == pytest.approx([0.5 + 1.0, -0.2])
+    assert turned[1] == pytest.approx([0.5 - 2.0, -0.2], abs=1e-9)
 
 
 def test_in_the_open_and_beside_a_wall_it_runs_alongside_the_command_stands():
@@ -337,11 +343,15 @@ def test_the_scan_s_view_is_its_beams_seen_from_the_laser():
         stamp_ns=1, angle_min_rad=-math.radians(50.0), angle_increment_rad=math.radians(0.5),
         range_min_m=0.05, range_max_m=8.0, ranges=np.full(201, 3.0, dtype=np.float32),
     )  # fmt: skip
-    view = scan_view(scan, 0.1)
-    assert view[0] == 0.1 and math.degrees(view[2]) == pytest.approx(50.0)
+    view = scan_view(scan, LaserMount(x_m=0.1))
+    assert view.x_m == 0.1 and math.degrees(view.hi_rad) == pytest.approx(50.0)
     at = [0.1 + np.cos(np.radians([40.0, 60.0, -60.0])), np.sin(np.radians([40.0, 60.0, -60.0]))]
     assert outside_view(np.column_stack(at), view).tolist() == [False, True, True]
-    assert not outside_view(np.column_stack(at), (0.0, -math.pi, math.pi)).any()
+    assert not outside_view(np.column_stack(at), ScanView(0.0, 0.0, -math.pi, math.pi)).any()
+    # the same laser at (0.5, -0.2), turned 90 deg left: it covers the base's left, not ahead
+    turned = scan_view(scan, LaserMount(x_m=0.5, y_m=-0.2, yaw_deg=90.0))
+    left, ahead = [0.5, -0.2 + 2.0], [0.5 + 2.0, -0.2]
+    assert outside_view(np.array([left, ahead]), turned).tolist() == [False, True]
 
 
 def test_remembered_returns_are_moved_with_the_base_and_kept_only_out_of_the_laser_s_view():
@@ -349,7 +359,7 @@ def test_remembered_returns_are_moved_with_the_base_and_kept_only_out_of_the_las
     after the base turned 45 deg right on the spot it lies at 82 deg, out of view, and is
     returned with the scan (masked as remembered); a return the scan covers again is not
     (the scan alone counts there); after avoid_memory_s it is forgotten."""
-    view = (0.0, -math.radians(50.0), math.radians(50.0))
+    view = ScanView(0.0, 0.0, -math.radians(50.0), math.radians(50.0))
     ctl = FollowController(ControllerSettings(avoid_memory_s=1.0))
     post = np.array([[0.48, 0.36]])
     ahead = np.array([[2.0, 0.0]])
