@@ -161,3 +161,140 @@ def test_a_standing_person_stays_still_in_the_world_with_the_laser_off_centre_an
         assert max(errors) < 0.2, errors
     else:
         assert min(errors) > 0.3 and max(errors) - min(errors) > 0.5, errors
+
+
+# --------------------------------------------------------------------------- recordings
+
+
+def _bag_with_tf(path, edges, scans: int = 5):
+    """A ROS 1 bag: 10 Hz scans in frame ``laser`` on /scan, and ``edges`` ((parent, child,
+    x, y, yaw_deg, roll_deg)) once on /tf_static."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    # tf2_msgs is not among rosbags' bundled types: its one-line definition
+    store.register(
+        get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+    )
+    t = store.types
+    Header, Time = t["std_msgs/msg/Header"], t["builtin_interfaces/msg/Time"]
+    Scan, Tf = t["sensor_msgs/msg/LaserScan"], t["tf2_msgs/msg/TFMessage"]
+    Stamped, Transform = t["geometry_msgs/msg/TransformStamped"], t["geometry_msgs/msg/Transform"]
+    Vector3, Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
+    t0 = 1_700_000_000_000_000_000
+
+    def header(stamp, frame):
+        sec, nsec = divmod(stamp, 1_000_000_000)
+        return Header(seq=0, stamp=Time(sec=sec, nanosec=nsec), frame_id=frame)
+
+    def quaternion(yaw_deg, roll_deg):  # roll about x, then yaw about z
+        y, r = math.radians(yaw_deg) / 2, math.radians(roll_deg) / 2
+        cy, sy, cr, sr = math.cos(y), math.sin(y), math.cos(r), math.sin(r)
+        return Quaternion(x=cy * sr, y=sy * sr, z=sy * cr, w=cy * cr)
+
+    tf = Tf(
+        transforms=[
+            Stamped(
+                header=header(t0, parent),
+                child_frame_id=child,
+                transform=Transform(
+                    translation=Vector3(x=x, y=y, z=0.3), rotation=quaternion(yaw, roll)
+                ),
+            )
+            for parent, child, x, y, yaw, roll in edges
+        ]
+    )
+    with Writer(path) as w:
+        c_tf = w.add_connection("/tf_static", Tf.__msgtype__, typestore=store)
+        c_scan = w.add_connection("/scan", Scan.__msgtype__, typestore=store)
+        w.write(c_tf, t0, store.serialize_ros1(tf, Tf.__msgtype__))
+        for i in range(scans):
+            stamp = t0 + i * 100_000_000
+            msg = Scan(
+                header=header(stamp, "laser"), angle_min=-1.5, angle_max=1.5,
+                angle_increment=3.0 / 299, time_increment=0.0, scan_time=0.1, range_min=0.02,
+                range_max=8.0, ranges=np.full(300, 3.0, np.float32),
+                intensities=np.zeros(0, np.float32),
+            )  # fmt: skip
+            w.write(c_scan, stamp, store.serialize_ros1(msg, Scan.__msgtype__))
+    return path
+
+
+CHAIN = [("base_link", "plate", 0.8, 0.0, 30.0, 0.0), ("plate", "laser", 0.08, 0.0, 12.0, 0.0)]
+
+
+def test_the_mount_is_read_from_a_bag_s_tf_static_chained_in_2d(tmp_path):
+    from followbot.bags import mount_from_tf
+
+    bag = _bag_with_tf(tmp_path / "tf.bag", CHAIN)
+    found = mount_from_tf(bag, "base_link", "laser")
+    m = found.mount
+    x, y = 0.8 + 0.08 * math.cos(math.radians(30)), 0.08 * math.sin(math.radians(30))
+    assert (m.x_m, m.y_m, m.yaw_deg) == pytest.approx((x, y, 42.0))
+    assert found.source == "/tf_static: base_link -> plate -> laser" and not found.warnings
+    # asked the other way round, the chain is walked backwards: the inverse pose
+    back = mount_from_tf(bag, "laser", "base_link").mount
+    assert back.to_base(m.to_base([[1.0, 2.0]])) == pytest.approx(np.array([[1.0, 2.0]]))
+    assert mount_from_tf(bag, "base_link", "camera") is None  # no chain: None
+    tilted = _bag_with_tf(tmp_path / "tilt.bag", [("base_link", "laser", 0.2, 0, 0, 180.0)])
+    assert "tilted (roll 180.0 deg" in mount_from_tf(tilted, "base_link", "laser").warnings[0]
+
+
+def _track(bag, out, *extra):
+    import subprocess
+    import sys
+
+    return subprocess.run(
+        [sys.executable, "-m", "followbot", "track", str(bag), "--output", str(out),
+         "--max-scans", "3", *extra],
+        capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+
+
+@pytest.mark.multiprocess
+def test_track_uses_the_bag_s_tf_mount_and_laser_pose_overrides_it(tmp_path):
+    bag = _bag_with_tf(tmp_path / "tf.bag", CHAIN)
+    out = _track(bag, tmp_path / "a")
+    assert out.returncode == 0, out.stderr
+    assert (
+        "laser mount: x 0.869 m, y 0.040 m, yaw 42.0 deg "
+        "(tf /tf_static: base_link -> plate -> laser)" in out.stderr
+    )
+    settings = yaml.safe_load((tmp_path / "a" / "tracker.settings.yaml").read_text())
+    assert settings["laser_mount"] == pytest.approx({"x_m": 0.8693, "y_m": 0.04, "yaw_deg": 42.0},
+                                                    abs=1e-3)  # fmt: skip
+    out = _track(bag, tmp_path / "b", "--laser-pose", "0.5,-0.1,10")
+    assert out.returncode == 0, out.stderr
+    assert "laser mount: x 0.500 m, y -0.100 m, yaw 10.0 deg (--laser-pose)" in out.stderr
+    settings = yaml.safe_load((tmp_path / "b" / "laser_legs.settings.yaml").read_text())
+    assert settings["laser_mount"] == {"x_m": 0.5, "y_m": -0.1, "yaw_deg": 10.0}
+    out = _track(bag, tmp_path / "c", "--laser-frame", "nowhere")
+    assert "no tf joins base_link and nowhere" in out.stderr
+    bad = _track(bag, tmp_path / "d", "--laser-pose", "0.5")
+    assert bad.returncode == 2 and "expected x,y,yaw_deg" in bad.stderr
+
+
+def test_a_carmen_log_s_robotlaser_records_give_the_laser_s_offset(tmp_path):
+    from followbot.bags import open_recording
+    from followbot.track import laser_mount_of
+
+    # the robot at (4, 6) heading 90 deg; the laser 0.3 m ahead of it (so at (4, 6.3)),
+    # turned 10 deg further
+    yaw = math.radians(90.0)
+    laser = (4.0, 6.3, yaw + math.radians(10.0))
+    cfg = "0 -1.5 3.0 0.01 30.0 0.01 0"
+    lines = []
+    for i in range(3):
+        r = " ".join(["2.0"] * 301)
+        poses = " ".join(map(str, (*laser, 4.0, 6.0, yaw, 0.0, 0.0, 0.5, 0.3, 0.0)))
+        t = f"{100 + i * 0.1:.1f}"
+        lines.append(f"ROBOTLASER1 {cfg} 301 {r} 0 {poses} {t} host {t}")
+    log = tmp_path / "robot.log"
+    log.write_text("\n".join(lines) + "\n")
+    rec = open_recording(log)
+    mount, source = laser_mount_of(rec, None, "base_link", None)
+    assert (mount.x_m, mount.y_m, mount.yaw_deg) == pytest.approx((0.3, 0.0, 10.0))
+    assert source.startswith("ROBOTLASER1 records")
+    given = parse_laser_pose("0.1,0,0")
+    assert laser_mount_of(rec, given, "base_link", None) == (given, "--laser-pose")
