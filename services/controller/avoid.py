@@ -51,26 +51,30 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   passer-by clears the line within a second or two; a pillar does not. Swerving at full
   speed round a passer-by turns the laser's view away from the target just as it is hidden.
 
-Turning on the spot and standing still are always free. The scan is in the laser frame,
-``laser_mount_x_m`` ahead of the base origin; returns outside its field of view are not known
-(the guard protects the way ahead only). The state the guard keeps from one command to the
-next (waiting, standing, the escape under way) is guard.py's.
+Turning on the spot and standing still are always free. The scan is in the laser frame, at the
+robot's ``laser_mount`` (x, y, yaw) in the base frame; its returns are turned into the base
+frame first. Returns outside its field of view are not known (the guard protects the way the
+laser looks only). The state the guard keeps from one command to the next (waiting, standing,
+the escape under way) is guard.py's.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from followbot.geometry import transform_points
 from followbot.schemas import LaserScan
 from followbot.services.laser_legs.core import beam_geometry, valid_mask
+from followbot.services.runtime.mount import LaserMount
 
 __all__ = [
     "MOVED_M",
     "MOVED_SHARE",
     "ObstacleGuard",
+    "ScanView",
     "moved_into_frame",
     "scan_points",
     "scan_view",
@@ -96,23 +100,39 @@ def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.
     return transform_points(points, (0.0, 0.0, 0.0), (dx, dy, th))
 
 
-def scan_view(scan: LaserScan, mount_x_m: float = 0.0) -> tuple[float, float, float]:
-    """(mount_x_m, first bearing, last bearing) of ``scan``'s beams, in the laser frame: the
-    part of the base's surroundings this scan covers."""
+class ScanView(NamedTuple):
+    """What part of the base's surroundings one scan covers: bearings ``lo_rad`` to ``hi_rad``
+    (from the base's +x) seen from the laser at (``x_m``, ``y_m``) in the base frame."""
+
+    x_m: float
+    y_m: float
+    lo_rad: float
+    hi_rad: float
+
+
+def scan_view(scan: LaserScan, mount: LaserMount | None = None) -> ScanView:
+    """The :class:`ScanView` of ``scan``'s beams, the laser at ``mount`` (None: the base's
+    origin, looking along +x)."""
+    mount = mount or LaserMount()
     first = float(scan.angle_min_rad)
     last = first + float(scan.angle_increment_rad) * max(len(scan.ranges) - 1, 0)
-    return mount_x_m, min(first, last), max(first, last)
+    yaw = mount.yaw_rad
+    return ScanView(mount.x_m, mount.y_m, min(first, last) + yaw, max(first, last) + yaw)
 
 
-def scan_points(scan: LaserScan, mount_x_m: float = 0.0) -> np.ndarray:
+def scan_points(scan: LaserScan, mount: LaserMount | None = None) -> np.ndarray:
     """(N, 2) base-frame points of ``scan``'s returns (no return -- NaN, inf, 0, out of
-    range -- as laser_legs' ``valid_mask`` says), the laser ``mount_x_m`` ahead of the base."""
+    range -- as laser_legs' ``valid_mask`` says), the laser at ``mount`` (None: the base's
+    origin)."""
     r = scan.ranges_m()
     n = r.shape[0]
     valid = valid_mask(r, scan.range_min_m, scan.range_max_m)
     _, cos, sin = beam_geometry(float(scan.angle_min_rad), float(scan.angle_increment_rad), n)
     r = r[valid].astype(np.float64)
-    return np.column_stack([mount_x_m + r * cos[:n][valid], r * sin[:n][valid]])
+    points = np.column_stack([r * cos[:n][valid], r * sin[:n][valid]])
+    if mount is None or mount.is_identity:
+        return points
+    return mount.to_base(points)
 
 
 class ObstacleGuard:
@@ -331,7 +351,7 @@ class ObstacleGuard:
         margin (up to ONWARD_M, short of its legs) -- the point past the corner, not merely
         away from it; none such: as without. ``keep_in_view`` (lo, hi): only headings that
         leave the target's bearing within (lo, hi) of the base's heading once it faces them
-        (the laser's view; laser frame taken as the base's)."""
+        (the laser's view, :class:`ScanView`, its offset from the base's origin neglected)."""
         keep = np.hypot(points[:, 0] - target_xy[0], points[:, 1] - target_xy[1]) > self.ignore
         points = points[keep]
         bearing = math.atan2(target_xy[1], target_xy[0])

@@ -90,7 +90,7 @@ def main() -> None:
     pts, view = scan_points(scan), scan_view(scan)
     ctl = FollowController(ControllerSettings(guard=GuardSettings(wait_s=0.0)))
     xy = (target.x_m, target.y_m)
-    keep = (view[1] + ESCAPE_VIEW_MARGIN_RAD, view[2] - ESCAPE_VIEW_MARGIN_RAD)
+    keep = (view.lo_rad + ESCAPE_VIEW_MARGIN_RAD, view.hi_rad - ESCAPE_VIEW_MARGIN_RAD)
     plan = ctl.guard.geometry.escape_goal  # what the controller calls as the escape begins
     rows.append(
         ("escape, planning its end (corner)", _median_us(lambda: plan(pts, xy, True, keep)))

@@ -61,6 +61,11 @@ _LOG = "docs/tracker_log.md"
 
 #: Settings that are gone or moved: a file or --set naming one is refused with this.
 RETIRED_SETTINGS: dict[str, str] = {
+    "laser_mount_x_m": (
+        "was replaced by laser_mount, one setting every stage reads: write "
+        "laser_mount: {x_m: X, y_m: Y, yaw_deg: DEGREES} at the top of your settings "
+        "(docs/robot.md)"
+    ),
     "follow_report": removed(
         f"following the reported position instead of the filter estimate, measured and left "
         f"off, see {_LOG}"
@@ -165,8 +170,6 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     body_radius_m: _Pos = 0.25
     """The base seen from above as a disc (the simulator's robot.radius_m); the guard keeps
     it off obstacles."""
-    laser_mount_x_m: float = 0.0
-    """The laser's position ahead of the base origin."""
     limits: LimitsSettings = msgspec.field(default_factory=LimitsSettings)
     """Speed, turn-rate and acceleration limits of every command."""
     pan: PanSettings = msgspec.field(default_factory=PanSettings)

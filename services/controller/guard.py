@@ -222,7 +222,7 @@ class Guard:
             # kept in the laser's view
             keep = None
             if view is not None:
-                keep = (view[1] + ESCAPE_VIEW_MARGIN_RAD, view[2] - ESCAPE_VIEW_MARGIN_RAD)
+                keep = (view.lo_rad + ESCAPE_VIEW_MARGIN_RAD, view.hi_rad - ESCAPE_VIEW_MARGIN_RAD)
             goal = g.escape_goal(obstacles, xy, True, keep)
             self._escape_goal, self._escape_age_s = goal, 0.0
             if goal is not None:

@@ -136,8 +136,8 @@ class _Loop:
         self.publish(c, t.stamp_ns)
 
     def on_scan(self, scan: LaserScan) -> None:
-        pts = scan_points(scan, self.s.laser_mount_x_m)
-        self.scans[scan.stamp_ns] = (pts, scan_view(scan, self.s.laser_mount_x_m))
+        pts = scan_points(scan, self.s.laser_mount)  # base frame
+        self.scans[scan.stamp_ns] = (pts, scan_view(scan, self.s.laser_mount))
         while len(self.scans) > 8:
             del self.scans[min(self.scans)]
         if self.pending is not None and self.pending[0].stamp_ns == scan.stamp_ns:

@@ -36,6 +36,11 @@ __all__ = ["LaserLegsSettings", "build_detector", "check", "main", "setup"]
 
 class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     retired_settings: ClassVar[dict[str, str]] = {
+        "laser_pose_in_base": (
+            "was replaced by laser_mount, one setting every stage reads: write "
+            "laser_mount: {x_m: X, y_m: Y, yaw_deg: DEGREES} at the top of your settings "
+            "(docs/robot.md)"
+        ),
         "detector_settings_while_lost": removed(
             "a second detector while the target is lost, measured with the tracker's removed "
             "look_far_walking_m and left off, see docs/tracker_log.md"
@@ -64,8 +69,6 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     """Lock-step runs: hold scan k until odometry stamped at or after k has arrived (two
     topics reach a node in no guaranteed order), at most this long. 0 (live, or no
     odometry): never wait."""
-    laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
     horizon_bin_deg: Annotated[float, msgspec.Meta(gt=0, le=45)] | None = 1.0
     """Publish with each scan's candidates the nearest return per bin of this many degrees
     (perception/candidates ``horizon``; the scan's resolution when coarser), so the tracker can
@@ -124,7 +127,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     out = node.publisher("perception/candidates")
     predictor = TargetPredictor(
         max_age_s=settings.prediction_max_age_s,
-        laser_pose=settings.laser_pose_in_base,
+        laser_pose=settings.laser_mount.pose(),  # tracking/target is in the base frame
         max_extrapolation_s=settings.odometry_max_extrapolation_s,
     )
 

@@ -23,6 +23,7 @@ import msgspec
 import yaml
 
 from .clock import ClockSettings
+from .mount import LaserMount
 from .security import AccessSettings, AuthSettings, TlsSettings
 
 __all__ = [
@@ -103,6 +104,10 @@ class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """How the stamps of received messages are judged (docs/runtime.md, "Clocks")."""
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     """Lowest level of log line written to stderr."""
+    laser_mount: LaserMount = LaserMount()
+    """Where the laser sits on the robot: {x_m, y_m, yaw_deg} in the base frame (REP-103; one
+    value for the whole robot, written once at the top of a compose or group settings file:
+    docs/robot.md). Candidates are turned from the laser frame into the base frame with it."""
 
     def __post_init__(self) -> None:
         from followbot.schemas import Keys

@@ -194,11 +194,12 @@ class LaserModel:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free ranges and hit indices from the robot pose (x, y, yaw) in the world."""
         x, y, yaw = pose
-        ox = x + self.spec.mount_x_m * math.cos(yaw)
-        oy = y + self.spec.mount_x_m * math.sin(yaw)
+        mx, my = self.spec.mount_x_m, self.spec.mount_y_m  # the mount, in the base frame
+        ox = x + mx * math.cos(yaw) - my * math.sin(yaw)
+        oy = y + mx * math.sin(yaw) + my * math.cos(yaw)
         return cast_rays(
             (ox, oy),
-            self.angle_min_rad + yaw,
+            self.angle_min_rad + yaw + math.radians(self.spec.mount_yaw_deg),
             self.angle_increment_rad,
             self.n_beams,
             segments,

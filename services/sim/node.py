@@ -488,11 +488,24 @@ class SimRunner:
 
 def check(settings: SimSettings) -> Scenario:
     """Load and validate the scenario (a ValueError with the scenario's own error), before any
-    network is opened: at start, and for ``--print-settings`` / ``followbot up --check``."""
+    network is opened: at start, and for ``--print-settings`` / ``followbot up --check``.
+
+    The scenario's laser must sit where the robot's ``laser_mount`` setting says, the one value
+    every stage reads: a simulated laser elsewhere would feed the stages scans they turn into
+    the base frame wrongly."""
     try:
-        return load_scenario_setting(settings.scenario)
+        scenario = load_scenario_setting(settings.scenario)
     except ScenarioError as exc:
         raise ValueError(f"scenario: {exc}") from None
+    mount = scenario.laser.mount()
+    if mount != settings.laser_mount:
+        raise ValueError(
+            f"scenario {scenario.name}: its laser sits at {mount.describe()}, but laser_mount "
+            f"says {settings.laser_mount.describe()}; set laser_mount: {{x_m: {mount.x_m}, "
+            f"y_m: {mount.y_m}, yaw_deg: {mount.yaw_deg}}} for every service (the top of a "
+            "compose file; followbot eval does it itself)"
+        )
+    return scenario
 
 
 def setup(node: Node, settings: SimSettings) -> SimRunner:

@@ -24,6 +24,8 @@ from typing import Annotated, Literal
 import msgspec
 import yaml
 
+from followbot.services.runtime.mount import LaserMount
+
 __all__ = [
     "ArcStep",
     "BoxSpec",
@@ -231,6 +233,15 @@ class LaserSpec(_Spec):
     """Laser position ahead of the base origin."""
     min_visible_beams: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 3
     """Beams on a person's legs for truth to call the person visible to the laser."""
+    # the laser's mount in the base frame, with mount_x_m (every stage gets it: laser_mount)
+    mount_y_m: Coord = 0.0
+    """Laser position left of the base origin."""
+    mount_yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    """The laser turned counter-clockwise from the base's heading."""
+
+    def mount(self) -> LaserMount:
+        """The laser's pose in the base frame, as the stages' ``laser_mount`` setting."""
+        return LaserMount(x_m=self.mount_x_m, y_m=self.mount_y_m, yaw_deg=self.mount_yaw_deg)
 
 
 class CameraSpec(_Spec):
@@ -244,6 +255,10 @@ class CameraSpec(_Spec):
     noise_std: Annotated[float, msgspec.Meta(ge=0.0, le=64.0)] = 3.0
     """Sensor noise, standard deviation in grey levels."""
     max_range_m: Pos = 12.0
+    mount_y_m: Coord = 0.0
+    """Camera (pan axis) position left of the base origin; ``mount_x_m`` ahead of it."""
+    mount_yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    """The camera's heading at pan 0, counter-clockwise from the base's heading."""
 
 
 class LightingKey(_Spec):

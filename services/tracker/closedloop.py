@@ -35,6 +35,7 @@ from followbot.schemas import (
 from followbot.services.controller.avoid import scan_points, scan_view
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.laser_legs.detectors import make_detector
+from followbot.services.runtime.mount import LaserMount
 from followbot.services.sim.scenario import Scenario, load_builtin
 from followbot.services.sim.simulation import Simulation
 
@@ -115,7 +116,7 @@ def run(
     sim = Simulation(sc, seed=seed)
     detector = make_detector("thesis")
     settings = msgspec.convert({"estimator": estimator, **(tracker or {})}, TrackerSettings)
-    trk = Tracker(settings)
+    trk = Tracker(settings, sc.laser.mount())
     trk.set_vision_alive(vision != "none")
     ctl = None
     if controller:
@@ -150,7 +151,7 @@ def run(
                     trk.add_verification(_oracle(cands, truth, fov))
                 if ctl is not None:
                     dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
-                    _command(sim, ctl, state, dt, scan, sc.laser.mount_x_m)
+                    _command(sim, ctl, state, dt, scan, sc.laser.mount())
                 if drive is not None:
                     sim.command_velocity(*drive)  # the base is driven; the camera still pans
                 last_stamp = scan.stamp_ns
@@ -174,12 +175,12 @@ def _oracle_model(stamp_ns: int, tgt) -> TargetModel:
     )
 
 
-def _command(sim, ctl, state: TrackState, dt: float, scan: LaserScan, mount_x_m: float) -> None:
+def _command(sim, ctl, state: TrackState, dt: float, scan: LaserScan, mount: LaserMount) -> None:
     """The controller's command for ``state``, sent to the simulated base and camera."""
     pts = view = None
     if ctl.guard is not None:  # the controller's obstacle guard sees the scan
-        pts = scan_points(scan, mount_x_m)
-        view = scan_view(scan, mount_x_m)
+        pts = scan_points(scan, mount)
+        view = scan_view(scan, mount)
     cmd = ctl.on_target(state, dt, pts, view)
     sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
     sim.command_pan(cmd.pan_rad)

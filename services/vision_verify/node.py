@@ -52,6 +52,7 @@ from followbot.schemas import (
     Verification,
     VerifiedCandidate,
 )
+from followbot.services.runtime.mount import candidates_in_base
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings
@@ -369,6 +370,9 @@ class VisionVerify:
     # ------------------------------------------------------------------ candidates, pairing
 
     def on_candidates(self, msg: PersonCandidates) -> None:
+        # the laser frame of the scan -> the base frame, where the cameras' mounts are given
+        # and where the tracker reads the verification's positions
+        msg = candidates_in_base(msg, self.s.laser_mount)
         had_model = self.model is not None
         if self.builder is not None:
             self.acq_cands[msg.stamp_ns] = msg

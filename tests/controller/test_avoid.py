@@ -18,6 +18,7 @@ from followbot.services.controller.avoid import (
 )
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.controller.guard import GuardSettings
+from followbot.services.runtime.mount import LaserMount
 from followbot.services.sim.scenario import load_builtin
 from followbot.services.sim.simulation import Simulation
 
@@ -49,10 +50,14 @@ def test_scan_points_drop_no_returns_and_apply_the_mount():
         r, stamp_ns=0, angle_min_rad=-math.pi / 2, angle_increment_rad=math.pi / 6,
         range_min_m=0.05, range_max_m=30.0,
     )  # fmt: skip
-    pts = scan_points(scan, mount_x_m=0.1)
+    pts = scan_points(scan, LaserMount(x_m=0.1))
     assert pts.shape == (2, 2)
     assert pts[0] == pytest.approx([0.1, -1.0])
     assert pts[1] == pytest.approx([0.1 + 2.0 * math.cos(math.pi / 2), 2.0])
+    # off-centre and turned 90 deg left: the beam to the laser's right points ahead of the base
+    turned = scan_points(scan, LaserMount(x_m=0.5, y_m=-0.2, yaw_deg=90.0))
+    assert turned[0] == pytest.approx([0.5 + 1.0, -0.2])
+    assert turned[1] == pytest.approx([0.5 - 2.0, -0.2], abs=1e-9)
 
 
 def test_in_the_open_and_beside_a_wall_it_runs_alongside_the_command_stands():
@@ -332,9 +337,13 @@ def test_the_scan_s_view_is_its_beams_seen_from_the_laser():
         stamp_ns=1, angle_min_rad=-math.radians(50.0), angle_increment_rad=math.radians(0.5),
         range_min_m=0.05, range_max_m=8.0, ranges=np.full(201, 3.0, dtype=np.float32),
     )  # fmt: skip
-    view = scan_view(scan, 0.1)
-    assert view[0] == 0.1
-    assert [math.degrees(b) for b in view[1:]] == [pytest.approx(-50.0), pytest.approx(50.0)]
+    view = scan_view(scan, LaserMount(x_m=0.1))
+    assert (view.x_m, view.y_m) == (0.1, 0.0)
+    assert [math.degrees(b) for b in view[2:]] == [pytest.approx(-50.0), pytest.approx(50.0)]
+    # the same laser at (0.5, -0.2), turned 90 deg left: it covers the base's left, not ahead
+    turned = scan_view(scan, LaserMount(x_m=0.5, y_m=-0.2, yaw_deg=90.0))
+    assert (turned.x_m, turned.y_m) == (0.5, -0.2)
+    assert [math.degrees(b) for b in turned[2:]] == [pytest.approx(40.0), pytest.approx(140.0)]
 
 
 def test_the_limited_arc_s_check_is_for_contact_not_the_margin():
