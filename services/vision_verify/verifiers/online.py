@@ -196,7 +196,7 @@ class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Gradient steps of each refit."""
 
 
-_FEATURES = ("target_views", "bystander_views", "state")
+_FEATURES = ("target_views", "state")  # and bystander_views once any is seen
 # state: [target views seen, bystander views seen, bias, w_1 .. w_D]
 _STATE_LEN = 3 + FEATURE_DIM
 
@@ -206,6 +206,8 @@ class OnlineVerifier:
 
     name = "online"
     settings_type = OnlineSettings
+    calibrated = True
+    """Its distance is 1 - P(target) (the service reports the probability too)."""
 
     def __init__(self, settings: OnlineSettings | None = None) -> None:
         self.settings = settings or OnlineSettings()
@@ -237,11 +239,8 @@ class OnlineVerifier:
         state[0] = 1
         state[2] = self.settings.prior_bias
         state[3:] = self._prior_w
-        return {
-            "target_views": x.reshape(1, -1).copy(),
-            "bystander_views": np.zeros((0, FEATURE_DIM), dtype=np.float32),
-            "state": state,
-        }
+        # no bystander_views until one is seen (an empty array cannot travel)
+        return {"target_views": x.reshape(1, -1).copy(), "state": state}
 
     def describe(self, frame: ImageFeatures, rect: Rect) -> None:
         return None  # no blending: the online model learns through update()
@@ -254,14 +253,19 @@ class OnlineVerifier:
                 raise ValueError(f"no {k!r} feature")
             if f[k].dtype.kind != "f":
                 raise ValueError(f"{k!r} is {f[k].dtype}, expected float")
-        t, b, state = f["target_views"], f["bystander_views"], f["state"]
+        t, b, state = f["target_views"], f.get("bystander_views"), f["state"]
         for k, a, most in (
             ("target_views", t, self.settings.target_views),
             ("bystander_views", b, self.settings.bystander_views),
         ):
-            if a.size == 0 and k == "bystander_views":
+            if a is None:
                 continue
-            if a.ndim != 2 or a.shape[1] != FEATURE_DIM or not 1 <= a.shape[0] <= max(most, 256):
+            if (
+                a.dtype.kind != "f"
+                or a.ndim != 2
+                or a.shape[1] != FEATURE_DIM
+                or not 1 <= a.shape[0] <= 512
+            ):
                 raise ValueError(
                     f"{k!r} has shape {a.shape}, expected up to {most} rows of {FEATURE_DIM}"
                 )
@@ -319,13 +323,16 @@ class OnlineVerifier:
             for x in [self.features(frame, v.rect)]
             if x is not None
         ]
-        bystanders, n_b = f["bystander_views"], int(state[1])
+        bystanders = f.get("bystander_views", np.zeros((0, FEATURE_DIM), np.float32))
+        n_b = int(state[1])
         if others:
             bystanders, n_b = _reservoir(bystanders, np.stack(others), n_b, s.bystander_views)
         state[0], state[1] = n_t, n_b
+        learnt = {"target_views": targets, "state": state}
         if len(bystanders):
             state[2], state[3:] = self._fit(targets, bystanders, state[2], state[3:])
-        return {"target_views": targets, "bystander_views": bystanders, "state": state}
+            learnt["bystander_views"] = bystanders
+        return learnt
 
     def _fit(
         self, targets: np.ndarray, bystanders: np.ndarray, bias: float, w: np.ndarray
