@@ -406,6 +406,10 @@ class VerifiedCandidate(msgspec.Struct, kw_only=True):
     in_view: bool
     distance: NonNegative | None = None
     """Appearance distance to the model (smaller is more alike); None when not in view."""
+    probability: _Probability | None = None
+    """Calibrated probability that this candidate is the target, from a verifier that gives
+    one (``online``: distance = 1 - probability, so its threshold 0.5 means "less likely than
+    not"); None from the others, or when not in view."""
 
 
 class Verification(Message, tag="verification", kw_only=True):

@@ -1,7 +1,8 @@
 """vision_verify: say which laser candidate is the target, by appearance (thesis 3.5, 4.4).
 
 Inputs: sensors/image (latest only), perception/candidates, perception/target_command,
-perception/target_model (models of other workers), sensors/scan (used only while acquiring).
+perception/target_model (models of other workers), sensors/scan (used only while acquiring),
+tracking/target (a verifier that learns online: which candidate the tracker followed).
 Outputs: perception/verification (one per judged scan, naming the scan stamp and the candidate
 positions judged), perception/target_model (also answers queries, so a restarted stage or a
 second worker recovers the model).
@@ -33,11 +34,12 @@ for images, Health.notes for the rest), never fatal.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterable
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import cv2
 import msgspec
@@ -49,6 +51,7 @@ from followbot.schemas import (
     PersonCandidates,
     TargetCommand,
     TargetModel,
+    TrackState,
     Verification,
     VerifiedCandidate,
 )
@@ -63,6 +66,7 @@ from .core import (
     ImageFeatures,
     InvalidModel,
     Model,
+    View,
     adapt_features,
     checked_model,
     confident,
@@ -179,6 +183,17 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     adapt_publish_period_s: _Pos = 5.0
     """With adapt_rate: an updated model is published (for the model holder) at most this
     often (s)."""
+    learn_from: Literal["tracker", "confident", "off"] = "tracker"
+    """For a verifier that learns online (``online``): which candidate of a judged scan is the
+    target it learns from, all others in view being bystanders. ``tracker``: the candidate the
+    tracker's state for that scan (tracking/target, status tracking) lies on, within
+    ``learn_gate_m`` and with no other candidate that near; ``confident``: the verifier's own
+    choice when confident (``adapt_max_distance``, ``adapt_margin``); ``off``: never."""
+    learn_gate_m: _Pos = 0.4
+    """``learn_from: tracker``: how near the tracker's target a candidate must lie to be it."""
+    learn_scans: Annotated[int, msgspec.Meta(ge=1, le=64)] = 8
+    """``learn_from: tracker``: judged scans kept waiting for the tracker's state of their
+    stamp (it comes after the verification, which the tracker uses)."""
 
 
 class CommandRefused(ValueError):
@@ -250,6 +265,10 @@ class VisionVerify:
         self.acq_images: list[tuple[int, np.ndarray, float]] = []
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
         self.model_dirty = False
+        # learn_from tracker: judged scans (stamp -> frame, views, model id) awaiting the
+        # tracker's state of the same stamp
+        self.judged: OrderedDict[int, tuple[ImageFeatures, list[View], int]] = OrderedDict()
+        self.learns = getattr(self.verifier, "update", None) is not None
 
         self.pub_verification = node.publisher("perception/verification")
         self.pub_model = node.publisher("perception/target_model", reliable=True, serve_last=True)
@@ -287,6 +306,14 @@ class VisionVerify:
         node.subscribe(
             "sensors/scan", self.on_scan, capacity=16, dispatch="loop", on_restart=self.scans.clear
         )
+        if self.learns and settings.learn_from == "tracker":
+            node.subscribe(
+                "tracking/target",
+                self.on_target,
+                capacity=16,
+                dispatch="loop",
+                on_restart=self.judged.clear,
+            )
         node.every(0.02, self.on_timer, name="vision_timer")
         node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
         node.every(settings.health_period_s, self.update_notes, name="notes")
@@ -492,12 +519,18 @@ class VisionVerify:
                 self.publish_empty(msg)
             return
         out = []
+        calibrated = getattr(self.verifier, "calibrated", False)  # distance = 1 - probability
         for v, d in zip(j.views, j.distances, strict=True):
             if v.status not in ("ok", "out_of_view"):
                 self.count(f"candidate_{v.status}")
             out.append(
                 VerifiedCandidate(
-                    index=v.index, x_m=v.x_m, y_m=v.y_m, in_view=d is not None, distance=d
+                    index=v.index,
+                    x_m=v.x_m,
+                    y_m=v.y_m,
+                    in_view=d is not None,
+                    distance=d,
+                    probability=None if d is None or not calibrated else max(0.0, 1.0 - d),
                 )
             )
         self.last_judged_ns = max(self.last_judged_ns, msg.stamp_ns)
@@ -515,6 +548,16 @@ class VisionVerify:
             )
         )
         s = self.s
+        if self.learns:
+            if s.learn_from == "tracker":
+                self.judged[msg.stamp_ns] = (frame.features, j.views, model.model_id)
+                while len(self.judged) > s.learn_scans:
+                    self.judged.popitem(last=False)
+            elif s.learn_from == "confident" and confident(
+                j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
+            ):
+                self.learn(frame.features, j.views, j.chosen)
+            return
         if s.adapt_rate > 0 and confident(
             j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
         ):
@@ -522,6 +565,42 @@ class VisionVerify:
             if seen is not None:
                 model.features = adapt_features(model.features, seen, s.adapt_rate)
                 self.model_dirty = True
+
+    def learn(self, frame: ImageFeatures, views: list[View], target: int) -> None:
+        """Let an online verifier learn ``views[target]`` as the target, the others as
+        bystanders."""
+        learnt = self.verifier.update(frame, views, target, self.model)
+        if learnt is None:
+            self.count("learn_no_view")
+            return
+        # Not republished: a target model on the network makes the tracker take the target
+        # where the model was learnt. A restarted worker starts again from the model as
+        # first learnt; a save command saves what was learnt since.
+        self.model.features = learnt
+        self.count("learnt")
+
+    def on_target(self, state: TrackState) -> None:
+        """The tracker's target at a judged scan: learn which candidate it was."""
+        judged = self.judged.pop(state.stamp_ns, None)
+        if judged is None or self.model is None or state.status != "tracking":
+            return
+        frame, views, model_id = judged
+        if model_id != self.model.model_id:
+            return  # judged with a model since replaced
+        # both in the base frame: candidates are turned into it as they arrive
+        x, y = state.x_m - state.shift_x_m, state.y_m - state.shift_y_m
+        near = [
+            i
+            for i, v in enumerate(views)
+            if math.hypot(v.x_m - x, v.y_m - y) <= self.s.learn_gate_m
+        ]
+        if len(near) != 1:
+            self.count("learn_ambiguous" if near else "learn_target_not_candidate")
+            return
+        if not views[near[0]].ok:
+            self.count("learn_target_not_in_view")
+            return
+        self.learn(frame, views, near[0])
 
     def publish_empty(self, msg: PersonCandidates, model_id: int | None = None) -> None:
         """An answer that judged nothing; ``model_id`` defaults to the current model's."""
