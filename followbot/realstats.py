@@ -266,14 +266,14 @@ def noise_figures(scans: Sequence[LaserScan], window: int = NOISE_WINDOW) -> Noi
         if not seen.any():
             continue
         R = R[:, seen]
-        med = np.nanmedian(R, axis=0)
+        med = np.nanmedian(R, axis=0)  # every column has valid readings (seen)
         dev = R - med
         near = np.abs(dev) < STATIC_BAND_M
         # a static beam: most scans of the window read within the band of its median
         static = near.sum(axis=0) >= 0.9 * window
         if not static.any():
             continue
-        dev = np.where(near, dev, np.nan)[:, static]
+        dev = np.where(near, dev, np.nan)[:, static]  # static columns: 90 % within the band
         mad = np.nanmedian(np.abs(dev - np.nanmedian(dev, axis=0)), axis=0)
         stds.append(1.4826 * mad)
         meds.append(med[static])
@@ -315,7 +315,8 @@ def scan_figures(scans: Iterable[LaserScan]) -> ScanFigures:
         runs += int(bad[0]) + int((bad[1:] & ~bad[:-1]).sum())
         if r.size >= 5:
             a, b = r[:-4], r[4:]
-            cont = ok[:-4] & ok[4:] & (np.abs(a - b) < SURFACE_STEP_M)
+            with np.errstate(invalid="ignore"):  # inf - inf beyond range: not a surface
+                cont = ok[:-4] & ok[4:] & (np.abs(a - b) < SURFACE_STEP_M)
             mid = ok[2:-2]
             surf += int(cont.sum())
             surf_inv += int((cont & ~mid).sum())
@@ -489,32 +490,17 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also measure the simulator (services/sim/realism.py) and print both side by side",
     )
-    p.add_argument(
-        "--real-json",
-        type=Path,
-        metavar="FILE",
-        help="read the real figures from this JSON (written by --json) instead of the data",
-    )
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    if args.real_json is not None:
-        try:
-            real = msgspec.json.decode(args.real_json.read_bytes(), type=RealFigures)
-        except (OSError, msgspec.DecodeError) as exc:
-            print(f"followbot realstats: {args.real_json}: {exc}", file=sys.stderr)
-            return 2
-    else:
-        if not (args.data / "leg_tracker").is_dir():
-            print(
-                f"followbot realstats: {args.data}/leg_tracker not found (give --data)",
-                file=sys.stderr,
-            )
-            return 2
-        real = measure_real(args.data, carmen=not args.no_carmen)
+    if not (args.data / "leg_tracker").is_dir():
+        print(f"followbot realstats: {args.data}/leg_tracker not found (give --data)",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    real = measure_real(args.data, carmen=not args.no_carmen)
     if args.json is not None:
         args.json.write_bytes(msgspec.json.format(msgspec.json.encode(real), indent=2) + b"\n")
     if args.sim:

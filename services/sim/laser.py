@@ -295,12 +295,14 @@ class LaserModel:
         # mixed pixels: a background beam beside a foreground edge (either side)
         far = np.where(finite, true, np.inf)
         for bg, fg in ((slice(1, None), slice(None, -1)), (slice(None, -1), slice(1, None))):
-            edge = far[bg] - far[fg] > m.edge_min_jump_m
+            with np.errstate(invalid="ignore"):  # inf - inf: both beyond range, no edge
+                edge = far[bg] - far[fg] > m.edge_min_jump_m
             sub = r[bg]
             mixed = edge & (u_edge[bg] < m.mixed_pixel_prob) & np.isfinite(far[bg])
             gone = edge & (u_edge[bg] >= m.mixed_pixel_prob)
             gone &= u_edge[bg] < m.mixed_pixel_prob + m.edge_invalid_prob
-            lerp = far[fg] + u_mix[bg] * (far[bg] - far[fg])
+            with np.errstate(invalid="ignore"):
+                lerp = far[fg] + u_mix[bg] * (far[bg] - far[fg])
             sub[:] = np.where(mixed, lerp, np.where(gone, np.nan, sub))
         r = r + gauss * (m.noise_at_zero_m + m.noise_per_m * np.where(np.isfinite(r), r, 0.0))
         invalid = u_inv < m.invalid_prob
@@ -312,10 +314,10 @@ class LaserModel:
         r = np.where(invalid, np.nan, r)
         if m.range_resolution_m > 0:
             r = np.round(r / m.range_resolution_m) * m.range_resolution_m
-        # duplicated beams: a beam repeats the reading before it (one pass, so runs form)
-        src = np.where(u_dup < m.duplicate_prob, 0, np.arange(n))
-        src[0] = 0
-        r = r[np.maximum.accumulate(src)]
+        # duplicated beams: a beam repeats the reading of the beam before it (one beam back,
+        # so a duplicate never carries a reading across several beams)
+        dup = np.flatnonzero(u_dup[1:] < m.duplicate_prob) + 1
+        r[dup] = r[dup - 1].copy()
         with np.errstate(invalid="ignore"):
             r = np.where(r > s.range_max_m, np.inf, r)
             r = np.where(r < s.range_min_m, np.nan, r)

@@ -220,11 +220,11 @@ class MeasuredLaserSpec(_Spec):
 
     noise_at_zero_m: NonNeg = 0.003
     """Range noise std at 0 m (docs/realism.md, "Range noise")."""
-    noise_per_m: NonNeg = 0.0008
+    noise_per_m: NonNeg = 0.0005
     """Added range noise std per metre of range (growing with range)."""
     range_resolution_m: NonNeg = 0.001
     """Ranges are rounded to this (the scanners report millimetres)."""
-    duplicate_prob: Prob = 0.25
+    duplicate_prob: Prob = 0.33
     """A beam repeats the previous beam's range (docs/realism.md, "Duplicated beams")."""
     mixed_pixel_prob: Prob = 0.22
     """The beam just past a foreground edge reads a range between the edge and the background."""
