@@ -10,6 +10,7 @@ followbot settings [--markdown FILE | --check FILE]             settings referen
 followbot demo                                                  live pipeline smoke
 followbot bench [--json FILE]                                   benchmarks
 followbot appearance VIDEO BOXES [--lags 25,100] ...            a verifier on boxed footage
+followbot realstats [--data DIR] [--sim] [--json FILE]          real vs simulated laser figures
 """
 
 from __future__ import annotations
@@ -119,6 +120,11 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "record": ("followbot.recording", "record_main", "record topics to MCAP"),
     "replay": ("followbot.recording", "replay_main", "replay an MCAP file or a ROS 1/2 bag"),
     "bench": ("followbot.bench", "main", "run the benchmarks"),
+    "realstats": (
+        "followbot.realstats",
+        "main",
+        "laser statistics of the real recordings, and of the simulator side by side",
+    ),
     "certs": ("followbot.certs", "main", "a CA and per-service certificates for secure Zenoh"),
     "settings": (
         "followbot.settingsdoc",
