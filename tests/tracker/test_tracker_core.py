@@ -1734,6 +1734,6 @@ def test_a_track_its_estimator_gives_up_on_as_it_is_matched_is_never_the_target(
     )
     for k in range(5):
         still_robot(trk, k * SCAN_NS)
-        out, people = trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
+        out, _people = trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
         assert out.track_id < 0 or out.track_id in trk.tracks
     assert trk.target_id < 0 or trk.target_id in trk.tracks
