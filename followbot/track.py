@@ -298,6 +298,7 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
                 raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
         time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
         last_shown = 0.0
+        silent = 0  # scans in a row a stage left unanswered
         messages = sensor_order(rec.messages())
         if "sensors/odom" in pubs:
             messages = odometry_ahead(messages)
@@ -306,7 +307,12 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             if topic != "sensors/scan":
                 continue
             scans += 1
-            barrier.wait(message.stamp_ns, timeout_s)
+            late = barrier.wait(message.stamp_ns, timeout_s)
+            silent = silent + 1 if late else 0
+            if silent >= GIVE_UP_SCANS:
+                log = ", ".join(str(out / f"{s}.log") for s in late)
+                why = f"{', '.join(late)} answered none of the last {silent} scans (see {log})"
+                raise SystemExit(_fail(why, procs, late))
             now = time.monotonic()
             if now - last_shown > 0.5 or scans == total:
                 last_shown = now
@@ -401,6 +407,10 @@ def odometry_ahead(messages, horizon_ns: int = 1_000_000_000):
         while pending and due(message.stamp_ns):
             yield pending.popleft()
     yield from pending
+
+
+#: A stage that answers none of this many scans in a row is failing on each: stop the run.
+GIVE_UP_SCANS = 3
 
 
 def _fail(why: str, procs, stages) -> int:

@@ -271,6 +271,9 @@ class Tracker:
         for t in self._tracks.delete_lost():
             if t.id == self.target_id:
                 self.identity.lose_target(t)
+            # a track its estimator gave up on even as it took a candidate (a UKF whose spread
+            # outgrew its bound over a long gap) is gone: nobody may choose it as the target
+            matched.pop(t.id, None)
         return matched
 
     def step_rest(self) -> People:

@@ -1719,3 +1719,21 @@ def test_a_target_that_walked_out_of_reach_is_looked_for_where_it_comes_back(wit
         )
         target, _ = trk.step(seen(j * SCAN_NS, back))
     assert (target.status == "tracking") == kept
+
+
+def test_a_track_its_estimator_gives_up_on_as_it_is_matched_is_never_the_target():
+    # every UKF track expires at once (its spread beyond a tiny bound): the nearest candidate
+    # ahead is matched by a track that is deleted in the same scan; it must not become the
+    # target (which made every later scan fail on a target id with no track)
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest",
+            estimator="ukf",
+            estimator_settings={"max_position_variance_m2": 1e-9},
+        )
+    )
+    for k in range(5):
+        still_robot(trk, k * SCAN_NS)
+        out, people = trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
+        assert out.track_id < 0 or out.track_id in trk.tracks
+    assert trk.target_id < 0 or trk.target_id in trk.tracks
