@@ -78,14 +78,14 @@ def default_data_dir() -> Path:
 
 def detectors_section(data: Path, quick: bool) -> dict:
     """Leg recall and false candidates per scan of every registered detector."""
-    from followbot.services.laser_legs.detectors import REGISTRY, make_detector
-    from followbot.services.laser_legs.realdata import (
+    from followbot.research.realdata import (
         HELD_OUT_NEGATIVE_TOPICS,
         HELD_OUT_POSITIVES,
         read_negative,
         read_positive,
         score,
     )
+    from followbot.services.laser_legs.detectors import REGISTRY, make_detector
 
     folder = data / "leg_tracker"
     if not (folder / "negative_2.bag").is_file():

@@ -418,7 +418,7 @@ def _cand_dict(c: CandidateFigures) -> dict[str, float]:
 def measure_real(data: Path, *, carmen: bool = True) -> RealFigures:
     """Measure every figure on the recordings under ``data`` (../shared/data layout)."""
     from followbot.bags import open_recording
-    from followbot.services.laser_legs.realdata import (
+    from followbot.research.realdata import (
         NEGATIVE_TOPICS,
         POSITIVES,
         read_negative,
@@ -488,7 +488,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--sim",
         action="store_true",
-        help="also measure the simulator (services/sim/realism.py) and print both side by side",
+        help="also measure the simulator (followbot/research/realism.py), side by side",
     )
     return p
 
@@ -504,7 +504,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         args.json.write_bytes(msgspec.json.format(msgspec.json.encode(real), indent=2) + b"\n")
     if args.sim:
-        from followbot.services.sim.realism import compare, measure_sim
+        from followbot.research.realism import compare, measure_sim
 
         sim = measure_sim()
         print(compare(real, sim))

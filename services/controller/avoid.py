@@ -65,9 +65,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from followbot.geometry import transform_points
 from followbot.schemas import LaserScan
-from followbot.services.laser_legs.core import beam_geometry, valid_mask
+from followbot.services.common.geometry import transform_points
+from followbot.services.common.scan import beam_geometry, valid_mask
 from followbot.services.runtime.mount import LaserMount
 
 __all__ = [

@@ -41,8 +41,8 @@ import math
 
 import numpy as np
 
-from followbot.geometry import wrap_angle
 from followbot.schemas import GroundTruth, Image, LaserScan, Message, Odometry, PersonTruth
+from followbot.services.common.geometry import wrap_angle
 
 from .camera import CameraModel
 from .laser import LaserModel

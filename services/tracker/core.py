@@ -33,7 +33,6 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
-from followbot.geometry import Pose, se2_change, transform_points
 from followbot.schemas import (
     Odometry,
     People,
@@ -42,6 +41,7 @@ from followbot.schemas import (
     TrackState,
     Verification,
 )
+from followbot.services.common.geometry import Pose, se2_change, transform_points
 from followbot.services.runtime.mount import LaserMount, candidates_in_base
 
 from . import report

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from followbot.realstats import default_data_dir, measure_real
+from followbot.research.realism import measure_sim, rows, within_band
 from followbot.services.sim.laser import LaserModel
-from followbot.services.sim.realism import measure_sim, rows, within_band
 from followbot.services.sim.scenario import LaserSpec, MeasuredLaserSpec
 
 DATA = default_data_dir()

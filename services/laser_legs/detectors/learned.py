@@ -50,7 +50,7 @@ project whose recordings we evaluate on; our own feature set and code.
    cross-validation inside the training split.
 
 The model file ships with the package (``services/laser_legs/models/``); it is produced by
-``python -m followbot.services.laser_legs.train`` (reproducible: fixed seeds, documented data
+``python -m followbot.research.train`` (reproducible: fixed seeds, documented data
 split). ``model_path`` selects another file.
 """
 
@@ -687,8 +687,7 @@ def load_model(path: Path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(
-            f"no learned leg model at {path}; train one with "
-            "`python -m followbot.services.laser_legs.train`"
+            f"no learned leg model at {path}; train one with `python -m followbot.research.train`"
         )
     if path.suffix == ".gz":
         with tempfile.TemporaryDirectory() as tmp:

@@ -36,9 +36,8 @@ from followbot.realstats import (
     valid_mask,
 )
 from followbot.schemas import GroundTruth, LaserScan
-
-from .scenario import LaserSpec, Scenario, load_builtin, parse_scenario
-from .simulation import Simulation
+from followbot.services.sim.scenario import LaserSpec, Scenario, load_builtin, parse_scenario
+from followbot.services.sim.simulation import Simulation
 
 __all__ = ["FURNISHED", "SimFigures", "compare", "measure_sim", "within_band"]
 

@@ -7,7 +7,7 @@ the camera sees it (the tracker is measured, not a verifier); ``vision_lag_scans
 The target model is given at the first scan from the truth (thesis 4.2: model construction
 finds the target's laser position).
 
-    python -m followbot.services.tracker.closedloop thesis_5_2_4_two_people --estimator ukf
+    python -m followbot.research.closedloop thesis_5_2_4_two_people --estimator ukf
 
 Metrics follow DESIGN.md "Metric definitions".
 """
@@ -38,8 +38,7 @@ from followbot.services.laser_legs.detectors import make_detector
 from followbot.services.runtime.mount import LaserMount
 from followbot.services.sim.scenario import Scenario, load_builtin
 from followbot.services.sim.simulation import Simulation
-
-from .core import Tracker, TrackerSettings
+from followbot.services.tracker.core import Tracker, TrackerSettings
 
 __all__ = ["Record", "metrics", "run"]
 
