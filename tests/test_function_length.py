@@ -12,7 +12,6 @@ LIMIT = 80
 NOT_YET = {
     ("services/laser_legs/detectors/bellotto.py", "detect"),
     ("services/laser_legs/detectors/learned.py", "features_and_centroids"),
-    ("services/laser_legs/node.py", "setup"),
     ("services/sim/camera.py", "_draw_person"),
     ("services/sim/laser.py", "cast_rays"),
     ("services/sim/people.py", "compile_path"),
