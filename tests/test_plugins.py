@@ -36,3 +36,20 @@ def test_every_built_in_detector_is_an_installed_plugin():
     for name, (cls, settings_cls) in DETECTORS.items():
         loaded = reg.load(name)
         assert loaded is cls and loaded.name == name and loaded.settings_type is settings_cls
+
+
+def test_every_role_builds_its_plugins_settings_alike():
+    """One way to turn a plugin's settings into its settings type, for all three roles: an
+    unknown key names the role, the plugin and the key; None gives the defaults."""
+    from followbot.services.laser_legs.detectors import make_detector
+    from followbot.services.tracker.estimators import estimator_factory
+    from followbot.services.vision_verify.verifiers import make_verifier
+
+    for role, build in (
+        ("detector 'thesis'", lambda s: make_detector("thesis", s)),
+        ("estimator 'particle'", lambda s: estimator_factory("particle", s)),
+        ("verifier 'histogram'", lambda s: make_verifier("histogram", s)),
+    ):
+        build(None)
+        with pytest.raises(ValueError, match=rf"^{role}: .*no_such_key"):
+            build({"no_such_key": 1})

@@ -94,14 +94,12 @@ def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> 
     key = "detector_settings"
     try:
         if check_only:
-            detector_settings(cls.settings_type, overrides)
+            detector_settings(settings.detector, overrides)
             return None
         detector = make_detector(settings.detector, overrides)
     except (ValueError, TypeError) as exc:
         fields = ", ".join(getattr(cls.settings_type, "__struct_fields__", ()))
-        raise SettingsError(
-            f"{key} for {settings.detector!r}: {exc} (valid keys: {fields})"
-        ) from None
+        raise SettingsError(f"{key}: {exc} (valid keys: {fields})") from None
     if settings.self_filter is not None:
         return SelfFilteredDetector(detector, settings.self_filter)
     return detector

@@ -57,6 +57,7 @@ from followbot.schemas import (
 )
 from followbot.services.runtime.mount import candidates_in_base
 from followbot.services.runtime.node import Node
+from followbot.services.runtime.plugins import PluginSettingsError
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings
 from followbot.services.runtime.stats import RateLimitedLog
@@ -221,7 +222,7 @@ class VisionVerify:
 
     def __init__(self, node: Node, settings: VisionVerifySettings) -> None:
         self.node, self.s = node, settings
-        self.verifier = make_verifier(settings.verifier, settings.verifier_settings)
+        self.verifier = build_verifier(settings)
         if not settings.cameras:
             raise ValueError("cameras: at least one camera is needed")
         self.threshold = None
@@ -889,7 +890,15 @@ def setup(node: Node, settings: VisionVerifySettings) -> VisionVerify:
 def check(settings: VisionVerifySettings) -> None:
     """The verifier is built as the service will build it (a face verifier loads its cascade
     file), so `followbot up --check` reports a missing or bad file before anything starts."""
-    make_verifier(settings.verifier, settings.verifier_settings)
+    build_verifier(settings)
+
+
+def build_verifier(settings: VisionVerifySettings):
+    """The configured verifier; a bad setting is a ValueError naming ``verifier_settings``."""
+    try:
+        return make_verifier(settings.verifier, settings.verifier_settings)
+    except PluginSettingsError as exc:
+        raise ValueError(f"verifier_settings: {exc}") from None
 
 
 def main(argv: list[str] | None = None) -> int:

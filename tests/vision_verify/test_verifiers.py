@@ -29,7 +29,7 @@ def test_the_three_verifiers_are_registered():
     assert set(NAMES) <= set(REGISTRY.names())
     with pytest.raises(ValueError, match="valid names"):
         make_verifier("nope")
-    with pytest.raises(ValueError, match="verifier_settings"):
+    with pytest.raises(ValueError, match=r"verifier 'histogram': .*colour_wieght"):
         make_verifier("histogram", {"colour_wieght": 2})
 
 

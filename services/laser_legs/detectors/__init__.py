@@ -15,8 +15,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import msgspec
-
 from followbot.services.runtime.plugins import Registry, UnknownPlugin
 
 from ..core import LegDetector
@@ -60,14 +58,10 @@ DETECTORS: dict[str, tuple[type, type]] = {
 REGISTRY = Registry("detectors")
 
 
-def detector_settings(settings_cls: type, overrides: Mapping[str, Any]) -> Any:
-    """``overrides`` as a ``settings_cls``; a key it lists as retired is a ValueError saying
-    what to do instead, any other bad key or value msgspec's ValidationError."""
-    retired = getattr(settings_cls, "retired_settings", None) or {}
-    for key in overrides:
-        if key in retired:
-            raise ValueError(f"{key} {retired[key]}")
-    return msgspec.convert(dict(overrides), settings_cls)
+def detector_settings(name: str, overrides: Mapping[str, Any] | None) -> Any:
+    """The settings of detector ``name`` with ``overrides`` (plugins.Registry.settings: a
+    retired key is refused with what to do instead, a bad key or value with the reason)."""
+    return REGISTRY.settings(name, REGISTRY.load(name), overrides)
 
 
 def make_detector(name: str = "thesis", settings: Any = None) -> LegDetector:
@@ -76,9 +70,4 @@ def make_detector(name: str = "thesis", settings: Any = None) -> LegDetector:
         cls = REGISTRY.load(name)
     except UnknownPlugin as exc:
         raise ValueError(str(exc)) from None
-    settings_cls = cls.settings_type
-    if isinstance(settings, Mapping):
-        settings = detector_settings(settings_cls, settings)
-    elif settings is not None and not isinstance(settings, settings_cls):
-        raise TypeError(f"{name} expects {settings_cls.__name__}, got {type(settings).__name__}")
-    return cls(settings)
+    return cls(REGISTRY.settings(name, cls, settings))

@@ -11,10 +11,9 @@ An unknown name fails with the list of valid ones.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any
 
-import msgspec
 import numpy as np
 
 from followbot.services.runtime.plugins import Registry
@@ -73,18 +72,7 @@ def estimator_factory(name: str = "particle", settings: Any = None) -> Estimator
     """A constructor of ``name``'s estimators with ``settings`` (a Struct or a mapping)."""
     cls = _load(name)
     check_estimator(cls)
-    settings_type = cls.settings_type
-    if settings is None:
-        s = settings_type()
-    elif isinstance(settings, settings_type):
-        s = settings
-    elif isinstance(settings, Mapping):
-        try:
-            s = msgspec.convert(dict(settings), settings_type, strict=False)
-        except msgspec.ValidationError as exc:
-            raise ValueError(f"estimator {name!r} settings: {exc}") from None
-    else:
-        raise TypeError(f"settings for {name!r} must be {settings_type.__name__} or a mapping")
+    s = registry.settings(name, cls, settings)
 
     def make(x_m: float, y_m: float, rng: np.random.Generator) -> Estimator:
         return cls(x_m, y_m, s, rng)

@@ -6,27 +6,20 @@ the seed's values) and the :class:`~followbot.services.vision_verify.core.Verifi
 
 from __future__ import annotations
 
-from followbot.services.runtime.plugins import Registry
+from typing import Any
+
+from followbot.services.runtime.plugins import Registry, UnknownPlugin
 
 __all__ = ["REGISTRY", "make_verifier"]
 
 REGISTRY = Registry("verifiers")
 
 
-def make_verifier(name: str, settings: dict | None = None):
-    """Instantiate the verifier ``name`` with settings given as a plain mapping (strict)."""
-    import msgspec
-
-    from followbot.services.runtime.plugins import UnknownPlugin
-
+def make_verifier(name: str, settings: Any = None):
+    """The verifier ``name`` with ``settings`` (Struct, mapping of overrides, or None)."""
     try:
         cls = REGISTRY.load(name)
     except UnknownPlugin as exc:
         raise ValueError(str(exc)) from None
-    st = getattr(cls, "settings_type", None)
-    if st is None:
-        return cls()
-    try:
-        return cls(msgspec.convert(settings or {}, st, strict=False))
-    except msgspec.ValidationError as exc:
-        raise ValueError(f"verifier_settings for {name!r}: {exc}") from None
+    s = REGISTRY.settings(name, cls, settings)
+    return cls() if s is None else cls(s)
