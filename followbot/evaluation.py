@@ -1,4 +1,4 @@
-"""Scenario evaluation: metrics, plots and the report of a lock-step run (issue 8).
+"""Scenario evaluation: metrics, plots and the report of a lock-step run.
 
 Pure functions on recorded messages: no Zenoh, no processes. The orchestrator runs a scenario
 in lock-step, fills one :class:`ScanRecord` per scan and hands a :class:`ScenarioRun` to

@@ -1,6 +1,6 @@
-"""``followbot sweep``: every scenario over several seeds, summed up the way the issues judge.
+"""``followbot sweep``: every scenario over several seeds, summed up as the closed-loop figures.
 
-    followbot sweep --output out/sweep/base                       # the 76 standard runs
+    followbot sweep --output out/sweep/base                       # the 84 standard runs
     followbot sweep --output out/sweep/try --set tracker.max_misses=4 --against out/sweep/base
 
 One seed says little in closed loop (a different pairing now and then sends the robot down
@@ -24,7 +24,7 @@ runs after an edit would mix versions). Run experiments from a separate clone.
 
 Printed and written (``DIR/sweep.md``, ``DIR/sweep.json``):
 
-- RMSE <= 0.08 m: runs meeting issue 6's accuracy target (``rmse_m``);
+- RMSE <= 0.08 m: runs meeting the accuracy target (``rmse_m``);
 - tracked >= 98 %: runs whose ``tracked_visible_share_acquired`` meets it;
 - time on wrong people: the sum of ``wrong_target_s`` over all runs;
 - two-person runs with a switch: the runs of the four two-person scenarios (thesis 5.2.4)
@@ -60,7 +60,7 @@ from followbot.services.runtime.argtypes import positive_int
 
 __all__ = ["HARD", "TWO_PERSON", "aggregate", "code_fingerprint", "grid", "main"]
 
-#: The four two-person scenarios of thesis 5.2.4 (issue 6: 0 identity switches on each).
+#: The four two-person scenarios of thesis 5.2.4 (target: 0 identity switches on each).
 TWO_PERSON = (
     "thesis_5_2_4_side_by_side",
     "thesis_5_2_4_turn_apart",

@@ -2,7 +2,7 @@
 
 Leg recall on the labelled positives (a labelled leg is found when a detected leg lies within
 0.15 m) and false person candidates per scan on negative_2 (nobody there), on the held-out
-split of issue 4 (positive_6, positive_7; negative_2 /rear_scan, /right_scan) and on all the
+held-out split (positive_6, positive_7; negative_2 /rear_scan, /right_scan) and on all the
 data. Also the median detection time per scan. See ``realdata`` for the data and pairing.
 Every detector runs behind the node's default robot-body filter (``self_filter``) unless
 ``--no-self-filter`` is given; the ``*_noself`` rows run without it.

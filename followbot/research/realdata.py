@@ -14,7 +14,7 @@ read with the ``rosbags`` package (pure Python, no ROS needed):
 * ``negative_2.bag``: scans of a cluttered room with nobody in it on ``/left_scan``,
   ``/rear_scan`` and ``/right_scan``: every person candidate there is false.
 
-Issue 4's split: train on positive_1..4 and negative_2's /left_scan; score on positive_6,
+The split: train on positive_1..4 and negative_2's /left_scan; score on positive_6,
 positive_7 and negative_2's /rear_scan and /right_scan.
 """
 
@@ -52,7 +52,7 @@ NEGATIVE_TOPICS = ("/left_scan", "/rear_scan", "/right_scan")
 TRAIN_NEGATIVE_TOPICS = ("/left_scan",)
 HELD_OUT_NEGATIVE_TOPICS = ("/rear_scan", "/right_scan")
 
-#: A labelled leg is found when a detected leg lies within this distance (issue 4).
+#: A labelled leg is found when a detected leg lies within this distance.
 MATCH_RADIUS_M = 0.15
 
 
@@ -146,7 +146,7 @@ def detected_legs(result: PersonCandidates) -> np.ndarray:
 
 
 class Score(msgspec.Struct, kw_only=True):
-    """Real-data figures of one detector (issue 4 "Must show")."""
+    """Real-data figures of one detector."""
 
     detector: str
     labelled_legs: int = 0

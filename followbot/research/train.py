@@ -4,7 +4,7 @@ Reproducible (fixed seeds, fixed data split); writes the model shipped with the 
 ``services/laser_legs/models/learned_rtrees.yml.gz``, and prints the cross-validation figures
 and the chosen thresholds (``LearnedSettings.threshold`` / ``pair_threshold``).
 
-Training data (issue 4's split; the held-out bags positive_6, positive_7 and negative_2's
+Training data (the held-out split; the held-out bags positive_6, positive_7 and negative_2's
 /rear_scan and /right_scan are never read here):
 
 * leg_tracker positive_1..4 — segments within 0.15 m of a labelled leg are legs, segments
@@ -24,7 +24,7 @@ is fitted on the other folds and scores the held-out one. On the pooled out-of-f
 every pair (``threshold``, ``pair_threshold``) on a 0.05 grid is scored as the detector would
 (leg recall within 0.15 m; false person candidates per scan), and the pair with the fewest
 false persons per scan (the larger of the two kinds of validation negatives below) among those
-whose recall is at least ``--min-recall`` (0.92: issue 4's 0.90 plus a margin) is chosen. The
+whose recall is at least ``--min-recall`` (0.92: the 0.90 target plus a margin) is chosen. The
 validation recall has carried over to the held-out lasers, its false persons have not (three to
 five times as many there; docs/laser_legs.md, "Operating point"), so the rule fixes the first
 and minimises the second. ``--min-recall none``: the earlier rule, the highest recall whose

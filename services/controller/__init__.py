@@ -1,4 +1,4 @@
-"""controller: the thesis's following rule with limits, and a watchdog (issue 6).
+"""controller: the thesis's following rule with limits, and a watchdog.
 
 ``core`` holds the rule and the limits, ``node`` the Zenoh adapter and the watchdog timer.
 """

@@ -1,4 +1,4 @@
-"""laser_legs: person candidates (legs) from every laser scan (issue 4; DESIGN.md "Leg candidates").
+"""laser_legs: person candidates (legs) from every laser scan (DESIGN.md "Leg candidates").
 
 ``core`` holds the pure vectorised helpers, ``detectors`` the swappable detectors (``thesis``
 by default), ``realdata`` and ``evaluate`` the evaluation on the leg_tracker bags.

@@ -1,5 +1,5 @@
 """Static background from a scan stream: where a point was seen occupied, again and again, over
-the last seconds (no labels; beyond the seeds, issue 4).
+the last seconds (no labels; beyond the seeds).
 
 The standard trick of ROS leg trackers (leg_tracker's local occupancy grid): furniture, posts and
 clutter stay put, a walking person's legs do not. :class:`StaticBackground` keeps the recent

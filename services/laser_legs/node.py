@@ -1,4 +1,4 @@
-"""laser_legs: person candidates (legs) from every laser scan (issue 4).
+"""laser_legs: person candidates (legs) from every laser scan.
 
 Subscribes ``sensors/scan`` (every scan, in order, handled inline on Zenoh's delivery thread:
 detection takes ~0.1 ms), ``tracking/target`` and ``sensors/odom`` (for the thesis's criterion

@@ -1,4 +1,4 @@
-"""Timing of the simulator's hot paths (issue 3 targets: scan <= 1 ms, render <= 5 ms).
+"""Timing of the simulator's hot paths (targets: scan <= 1 ms, render <= 5 ms).
 
     python -m followbot.services.sim.bench
 

@@ -4,7 +4,7 @@ Publishes sensors/scan, sensors/odom and (optionally) sensors/image at chosen ra
 sequence numbers and wall-clock stamps, for as long as asked, in bounded memory. The scene is
 fixed and cheap to compute: a round room and ``people`` walkers (default one) evenly spaced
 on one circle round a still robot, each with two alternating legs (so scans contain real leg
-arcs for a detector to find and a tracker to follow). Use the simulator (services/sim, issue 3)
+arcs for a detector to find and a tracker to follow). Use the simulator (services/sim)
 when you need ground truth and closed-loop control.
 
     followbot run synthetic --set scan_rate_hz=1000 --set count=100000

@@ -1,4 +1,4 @@
-"""Leg detectors, chosen by name (issue 4): each turns a LaserScan into PersonCandidates.
+"""Leg detectors, chosen by name: each turns a LaserScan into PersonCandidates.
 
 ``make_detector("thesis")`` builds the default; an unknown name fails with the valid names.
 Detectors are plugins of the entry-point group ``followbot.detectors`` (the built-in ones are

@@ -1,5 +1,5 @@
 """A learned leg classifier: random trees (OpenCV ``cv2.ml.RTrees``) on segment features —
-beyond the seeds (issue 4). In the spirit of Arras et al. (ICRA 2007) and the leg_tracker
+beyond the seeds. In the spirit of Arras et al. (ICRA 2007) and the leg_tracker
 project whose recordings we evaluate on; our own feature set and code.
 
 1. Segments (:func:`segments`): runs of consecutive valid beams whose neighbouring points are
@@ -397,7 +397,7 @@ def select_legs(
 
 
 class LegTracks:
-    """Temporal confirmation of leg scores: short-lived leg tracks (beyond the seeds, issue 4;
+    """Temporal confirmation of leg scores: short-lived leg tracks (beyond the seeds;
     in the spirit of leg_tracker's track confidence, our own code).
 
     Each track ``j`` has a position ``p_j`` in a registered frame, a velocity ``v_j`` and an
