@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -499,23 +497,3 @@ def test_any_candidates_any_pan_never_fail(model_file, xy, pan):
     (v,) = rig.verifications()
     assert len(v.candidates) == len(xy)
     assert v.chosen == -1 or v.candidates[v.chosen].in_view
-
-
-@pytest.mark.parametrize(
-    ("old", "new"),
-    [
-        ("models_dir", "model.dir"),
-        ("learn_from", "learn.source"),
-        ("occlusion_margin_m", "occlusion.margin_m"),
-    ],
-)
-def test_a_moved_setting_is_refused_naming_where_it_went(tmp_path, old, new):
-    from followbot.services.runtime.settings import SettingsError
-
-    cfg = tmp_path / "vision.yaml"
-    cfg.write_text(f"{old}: 1\n")
-    with pytest.raises(SettingsError, match=rf"{old} was renamed: set {re.escape(new)}"):
-        load_settings(VisionVerifySettings, cfg)
-    cfg.write_text("adapt_rate: 0.02\n")
-    with pytest.raises(SettingsError, match="adapt_rate was removed"):
-        load_settings(VisionVerifySettings, cfg)
