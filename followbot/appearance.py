@@ -76,14 +76,11 @@ def _fraction(text: str) -> float:
 
 def _service_defaults() -> dict:
     """The vision_verify service's defaults this command follows (one place for them)."""
-    from followbot.services.vision_verify.node import LearnSettings, VisionVerifySettings
+    import msgspec
 
-    learn = LearnSettings()
-    return {
-        "verifier": VisionVerifySettings().verifier,
-        "adapt_max_distance": learn.confident_max_distance,
-        "adapt_margin": learn.confident_margin,
-    }
+    from followbot.services.vision_verify.node import VisionVerifySettings
+
+    return {f.name: f.default for f in msgspec.structs.fields(VisionVerifySettings)}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -136,8 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--adapt-when", choices=("always", "confident"), default="always",
         help="following: update on every box of the target (always), or only when the "
-        "verifier picks the target confidently, by the service's learn.confident_max_distance "
-        "and learn.confident_margin (confident)",
+        "verifier picks the target confidently, by the service's adapt_max_distance and "
+        "adapt_margin (confident)",
     )  # fmt: skip
     p.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     p.add_argument("--plot", metavar="FILE", help="plot the figures against the lag (PNG, SVG)")

@@ -7,8 +7,8 @@ and exits 1 on a refusal. For acquire it waits for the new model on perception/t
 and prints it.
 
 save and load take --path NAME: a file name in vision_verify's models folder (its
-``model.dir`` setting, by default ~/.local/share/followbot/models); without it, the
-service's ``model.file`` setting (target.model).
+``models_dir`` setting, by default ~/.local/share/followbot/models); without it, the
+service's ``model_file`` setting (target.model).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--path",
         default="",
-        help="save/load: a file name in vision_verify's models folder (default: its model.file)",
+        help="save/load: a file name in vision_verify's models folder (default: its model_file)",
     )
     p.add_argument(
         "--wait",

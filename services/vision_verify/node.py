@@ -39,7 +39,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterable
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, Literal
 
 import cv2
 import msgspec
@@ -59,7 +59,7 @@ from followbot.services.runtime.mount import candidates_in_base
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.plugins import PluginSettingsError
 from followbot.services.runtime.service import service_main
-from followbot.services.runtime.settings import NodeSettings, removed, renamed
+from followbot.services.runtime.settings import NodeSettings
 from followbot.services.runtime.stats import RateLimitedLog
 
 from .core import (
@@ -68,6 +68,7 @@ from .core import (
     InvalidModel,
     Model,
     View,
+    adapt_features,
     checked_model,
     confident,
     judge,
@@ -87,110 +88,6 @@ __all__ = ["VisionVerify", "VisionVerifySettings", "main", "setup"]
 
 _NS = 1_000_000_000
 _Pos = Annotated[float, msgspec.Meta(gt=0)]
-
-
-#: Settings that are gone or moved: a file or --set naming one is refused with this.
-RETIRED_SETTINGS: dict[str, str] = {
-    "min_visible_fraction": renamed("occlusion.min_visible_fraction"),
-    "occlusion_margin_m": renamed("occlusion.margin_m"),
-    "occluder_half_width_m": renamed("occlusion.occluder_half_width_m"),
-    "occlusion_abstain_fraction": renamed("occlusion.abstain_fraction"),
-    "models_dir": renamed("model.dir"),
-    "model_file": renamed("model.file"),
-    "max_model_bytes": renamed("model.max_bytes"),
-    "query_model_on_start": renamed("model.query_on_start"),
-    "query_timeout_s": renamed("model.query_timeout_s"),
-    "query_period_s": renamed("model.query_period_s"),
-    "model_holder": renamed("model.holder"),
-    "recover_wait_s": renamed("model.recover_wait_s"),
-    "learn_from": renamed("learn.source"),
-    "learn_gate_m": renamed("learn.gate_m"),
-    "learn_scans": renamed("learn.scans"),
-    "adapt_max_distance": renamed("learn.confident_max_distance"),
-    "adapt_margin": renamed("learn.confident_margin"),
-    "adapt_rate": removed(
-        "blending each confident view into the model, measured and left off "
-        "(docs/vision_verify.md); the online verifier learns instead (verifier: online)"
-    ),
-    "adapt_publish_period_s": removed("it only applied with adapt_rate, also removed"),
-}
-
-
-class OcclusionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """What of a candidate's rectangle others hide (beyond the thesis)."""
-
-    min_visible_fraction: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = 0.5
-    """Beyond the thesis: the columns of a candidate's rectangle that nearer candidates'
-    rectangles cover are not its own (the laser gives the depth order). A candidate is judged
-    on the widest run of columns left, and skipped as ``occluded`` (counted) when that run is
-    under this fraction of its width. None: judge whole rectangles, as the thesis."""
-    margin_m: Annotated[float, msgspec.Meta(ge=0)] | None = 0.3
-    """Beyond the thesis: what the laser sees in front of a candidate. The detector reports
-    only people near the target (thesis criterion 3), so a passer-by walking between the
-    camera and the target is no candidate, and its pixels would be judged as the target's.
-    A leg-like return of the candidates message's ``horizon`` (core.horizon_covers: a narrow
-    run standing in front of its neighbours; walls and pillars are not) more than this nearer
-    than a candidate stands for a body ``occluder_half_width_m`` either side; what it covers
-    is used as ``abstain_fraction`` says. None: candidates' rectangles only."""
-    occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
-    """With margin_m: the half width (m) of the body a leg-like return in front of
-    a candidate stands for."""
-    abstain_fraction: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = 0.25
-    """With margin_m: the whole rectangle is judged as before, and a candidate is
-    reported unjudged only when it would be rejected and those returns cover at least this
-    share of its columns: a view with someone unreported in front of it is trusted when it
-    matches, not when it rejects (the tracker then counts no rejection). Default chosen by the
-    closed-loop runs of docs/tracker_log.md. None: cut the covered columns from the
-    rectangle, as nearer candidates' (min_visible_fraction; measured worse)."""
-
-
-class ModelStoreSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """Model files, and getting the model back after a restart."""
-
-    dir: str = ""
-    """Folder of the files that save/load commands name; nothing outside it is read or
-    written. "": $XDG_DATA_HOME/followbot/models (~/.local/share/followbot/models). A
-    relative path is taken from the working directory at start."""
-    file: str = "target.model"
-    """Name (a file of dir) for save/load commands that name none; "": none."""
-    max_bytes: Annotated[int, msgspec.Meta(ge=1024, le=1 << 30)] = MAX_MODEL_BYTES
-    """Largest model file saved or loaded, and largest model (its features) taken from the
-    network."""
-    query_on_start: bool = True
-    """Ask the network for the model on start, and again every query_period_s while there
-    is none (until one is installed or a reset command drops it)."""
-    query_timeout_s: _Pos = 1.0
-    """How long one query waits for answers."""
-    query_period_s: _Pos = 1.0
-    """Seconds between two queries for the model while this service has none."""
-    holder: str = "tracker"
-    """The service that keeps the model for a restarted worker (the tracker serves the last
-    model it got): once its liveliness is seen, a query it does not answer means it holds
-    none. "": no such service."""
-    recover_wait_s: _Pos = 3.0
-    """With auto_acquire and ``model.holder`` not seen alive: how long after start a query
-    still counts as possibly missing a holder (nobody holds a model is concluded only from
-    a query sent later)."""
-
-
-class LearnSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """What an online verifier learns from while the robot follows."""
-
-    source: Literal["tracker", "confident", "off"] = "tracker"
-    """For a verifier that learns online (``online``): which candidate of a judged scan is the
-    target it learns from, all others in view being bystanders. ``tracker``: the candidate the
-    tracker's state for that scan (tracking/target, status tracking) lies on, within
-    ``gate_m`` and with no other candidate that near; ``confident``: the verifier's own
-    choice when confident (``confident_max_distance``, ``confident_margin``); ``off``: never."""
-    gate_m: _Pos = 0.4
-    """``source: tracker``: how near the tracker's target a candidate must lie to be it."""
-    scans: Annotated[int, msgspec.Meta(ge=1, le=64)] = 8
-    """``source: tracker``: judged scans kept waiting for the tracker's state of their
-    stamp (it comes after the verification, which the tracker uses)."""
-    confident_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
-    """``source: confident``: the chosen candidate's distance is at most this ..."""
-    confident_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
-    """... and at least this much nearer than every other candidate's."""
 
 
 class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
@@ -221,8 +118,29 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     (px) is not judged (too_small): too few pixels for a histogram."""
     max_rect_width_factor: _Pos = 3.0
     """Candidates whose rectangle is wider than this many image widths are skipped."""
-    occlusion: OcclusionSettings = msgspec.field(default_factory=lambda: OcclusionSettings())
-    """What of a candidate's rectangle others hide: ``--set occlusion.margin_m=0.4``."""
+    min_visible_fraction: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = 0.5
+    """Beyond the thesis: the columns of a candidate's rectangle that nearer candidates'
+    rectangles cover are not its own (the laser gives the depth order). A candidate is judged
+    on the widest run of columns left, and skipped as ``occluded`` (counted) when that run is
+    under this fraction of its width. None: judge whole rectangles, as the thesis."""
+    occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] | None = 0.3
+    """Beyond the thesis: what the laser sees in front of a candidate. The detector reports
+    only people near the target (thesis criterion 3), so a passer-by walking between the
+    camera and the target is no candidate, and its pixels would be judged as the target's.
+    A leg-like return of the candidates message's ``horizon`` (core.horizon_covers: a narrow
+    run standing in front of its neighbours; walls and pillars are not) more than this nearer
+    than a candidate stands for a body ``occluder_half_width_m`` either side; what it covers
+    is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only."""
+    occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
+    """With occlusion_margin_m: the half width (m) of the body a leg-like return in front of
+    a candidate stands for."""
+    occlusion_abstain_fraction: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = 0.25
+    """With occlusion_margin_m: the whole rectangle is judged as before, and a candidate is
+    reported unjudged only when it would be rejected and those returns cover at least this
+    share of its columns: a view with someone unreported in front of it is trusted when it
+    matches, not when it rejects (the tracker then counts no rejection). Default chosen by the
+    closed-loop runs of docs/tracker_log.md. None: cut the covered columns from the
+    rectangle, as nearer candidates' (min_visible_fraction; measured worse)."""
     acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
     auto_acquire: bool = False
     """Learn a model on start, without a command (one mover, still robot), when nobody on the
@@ -232,13 +150,51 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     acquire_timeout_s: _Pos = 30.0
     """An acquisition (an acquire command, or auto_acquire) that has learnt no model after
     this long (s) gives up, with a warning (counted as acquire_timeout)."""
-    model: ModelStoreSettings = msgspec.field(default_factory=lambda: ModelStoreSettings())
-    """Where models are saved, and how a restarted worker gets its model back:
-    ``--set model.dir=/var/lib/followbot``."""
-    learn: LearnSettings = msgspec.field(default_factory=lambda: LearnSettings())
-    """What an online verifier learns from: ``--set learn.source=confident``."""
-
-    retired_settings: ClassVar[dict[str, str]] = RETIRED_SETTINGS
+    models_dir: str = ""
+    """Folder of the files that save/load commands name; nothing outside it is read or
+    written. "": $XDG_DATA_HOME/followbot/models (~/.local/share/followbot/models). A
+    relative path is taken from the working directory at start."""
+    model_file: str = "target.model"
+    """Name (a file of models_dir) for save/load commands that name none; "": none."""
+    max_model_bytes: Annotated[int, msgspec.Meta(ge=1024, le=1 << 30)] = MAX_MODEL_BYTES
+    """Largest model file saved or loaded, and largest model (its features) taken from the
+    network."""
+    query_model_on_start: bool = True
+    """Ask the network for the model on start, and again every query_period_s while there
+    is none (until one is installed or a reset command drops it)."""
+    query_timeout_s: _Pos = 1.0
+    """How long one query waits for answers."""
+    query_period_s: _Pos = 1.0
+    """Seconds between two queries for the model while this service has none."""
+    model_holder: str = "tracker"
+    """The service that keeps the model for a restarted worker (the tracker serves the last
+    model it got): once its liveliness is seen, a query it does not answer means it holds
+    none. "": no such service."""
+    recover_wait_s: _Pos = 3.0
+    """With auto_acquire and ``model_holder`` not seen alive: how long after start a query
+    still counts as possibly missing a holder (nobody holds a model is concluded only from
+    a query sent later)."""
+    adapt_rate: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    """Online model update rate per confident match (0: off; e.g. 0.02)."""
+    adapt_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
+    """With adapt_rate: the model is updated only from a chosen candidate at most this
+    distance from it ..."""
+    adapt_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
+    """... and at least this much nearer than every other candidate."""
+    adapt_publish_period_s: _Pos = 5.0
+    """With adapt_rate: an updated model is published (for the model holder) at most this
+    often (s)."""
+    learn_from: Literal["tracker", "confident", "off"] = "tracker"
+    """For a verifier that learns online (``online``): which candidate of a judged scan is the
+    target it learns from, all others in view being bystanders. ``tracker``: the candidate the
+    tracker's state for that scan (tracking/target, status tracking) lies on, within
+    ``learn_gate_m`` and with no other candidate that near; ``confident``: the verifier's own
+    choice when confident (``adapt_max_distance``, ``adapt_margin``); ``off``: never."""
+    learn_gate_m: _Pos = 0.4
+    """``learn_from: tracker``: how near the tracker's target a candidate must lie to be it."""
+    learn_scans: Annotated[int, msgspec.Meta(ge=1, le=64)] = 8
+    """``learn_from: tracker``: judged scans kept waiting for the tracker's state of their
+    stamp (it comes after the verification, which the tracker uses)."""
 
 
 class CommandRefused(ValueError):
@@ -279,21 +235,21 @@ class VisionVerify:
         self.model: Model | None = None
         self.model_id = 0  # the largest id installed or built here
         self.files = ModelFiles(
-            settings.model.dir or default_models_dir(), settings.model.max_bytes
+            settings.models_dir or default_models_dir(), settings.max_model_bytes
         )
-        if settings.model.file:
+        if settings.model_file:
             try:
-                self.files.check_name(settings.model.file)
+                self.files.check_name(settings.model_file)
             except ModelFileError as exc:
                 raise ValueError(f"model_file: {exc}") from None  # a settings error: exit 2
         self._log = RateLimitedLog(node.log)
         # Recovery (see the module docstring): ask while there is no model; an auto-learnt
         # model waits (held_build) until a conclusive query found nobody holding one.
-        self.asking = settings.model.query_on_start
-        self.nobody_holds = not settings.model.query_on_start
+        self.asking = settings.query_model_on_start
+        self.nobody_holds = not settings.query_model_on_start
         self.held_build: Model | None = None
         self._holder_seen = threading.Event()
-        self._recover_deadline = time.monotonic() + settings.model.recover_wait_s
+        self._recover_deadline = time.monotonic() + settings.recover_wait_s
         self._query_thread: threading.Thread | None = None
         self.last_command = ""
         self.frames: list[_Frame] = []  # the two newest decoded images, oldest first
@@ -309,6 +265,7 @@ class VisionVerify:
         # lock-step acquisition: images wait here so the builder sees every input in stamp order
         self.acq_images: list[tuple[int, np.ndarray, float]] = []
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
+        self.model_dirty = False
         # learn_from tracker: judged scans (stamp -> frame, views, model id) awaiting the
         # tracker's state of the same stamp
         self.judged: OrderedDict[int, tuple[ImageFeatures, list[View], int]] = OrderedDict()
@@ -350,7 +307,7 @@ class VisionVerify:
         node.subscribe(
             "sensors/scan", self.on_scan, capacity=16, dispatch="loop", on_restart=self.scans.clear
         )
-        if self.learns and settings.learn.source == "tracker":
+        if self.learns and settings.learn_from == "tracker":
             node.subscribe(
                 "tracking/target",
                 self.on_target,
@@ -359,10 +316,11 @@ class VisionVerify:
                 on_restart=self.judged.clear,
             )
         node.every(0.02, self.on_timer, name="vision_timer")
+        node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
         node.every(settings.health_period_s, self.update_notes, name="notes")
-        node.every(settings.model.query_period_s, self.ask, name="ask_model")
-        if settings.model.holder:
-            node.bus.watch_liveliness(node.keys.alive(settings.model.holder), self._on_holder)
+        node.every(settings.query_period_s, self.ask, name="ask_model")
+        if settings.model_holder:
+            node.bus.watch_liveliness(node.keys.alive(settings.model_holder), self._on_holder)
         node.set_condition("model", "degraded", "no target model")
         if settings.auto_acquire:
             self.start_acquire(auto=True)
@@ -544,11 +502,11 @@ class VisionVerify:
                 xy,
                 frame.pan_rad,
                 self.threshold,
-                min_visible_fraction=self.s.occlusion.min_visible_fraction,
+                min_visible_fraction=self.s.min_visible_fraction,
                 horizon=msg.horizon,
-                horizon_margin_m=self.s.occlusion.margin_m,
-                horizon_half_width_m=self.s.occlusion.occluder_half_width_m,
-                abstain_fraction=self.s.occlusion.abstain_fraction,
+                horizon_margin_m=self.s.occlusion_margin_m,
+                horizon_half_width_m=self.s.occluder_half_width_m,
+                abstain_fraction=self.s.occlusion_abstain_fraction,
                 min_side_px=self.s.min_rect_side_px,
                 max_width_factor=self.s.max_rect_width_factor,
             )
@@ -592,15 +550,22 @@ class VisionVerify:
         )
         s = self.s
         if self.learns:
-            if s.learn.source == "tracker":
+            if s.learn_from == "tracker":
                 self.judged[msg.stamp_ns] = (frame.features, j.views, model.model_id)
-                while len(self.judged) > s.learn.scans:
+                while len(self.judged) > s.learn_scans:
                     self.judged.popitem(last=False)
-            elif s.learn.source == "confident" and confident(
-                j.distances, j.chosen, s.learn.confident_max_distance, s.learn.confident_margin
+            elif s.learn_from == "confident" and confident(
+                j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
             ):
                 self.learn(frame.features, j.views, j.chosen)
             return
+        if s.adapt_rate > 0 and confident(
+            j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
+        ):
+            seen = self.verifier.describe(frame.features, j.views[j.chosen].rect)
+            if seen is not None:
+                model.features = adapt_features(model.features, seen, s.adapt_rate)
+                self.model_dirty = True
 
     def learn(self, frame: ImageFeatures, views: list[View], target: int) -> None:
         """Let an online verifier learn ``views[target]`` as the target, the others as
@@ -628,7 +593,7 @@ class VisionVerify:
         near = [
             i
             for i, v in enumerate(views)
-            if math.hypot(v.x_m - x, v.y_m - y) <= self.s.learn.gate_m
+            if math.hypot(v.x_m - x, v.y_m - y) <= self.s.learn_gate_m
         ]
         if len(near) != 1:
             self.count("learn_ambiguous" if near else "learn_target_not_candidate")
@@ -679,7 +644,7 @@ class VisionVerify:
     def check(self, message: TargetModel) -> Model:
         """``message`` as a model this service can use; InvalidModel otherwise."""
         return checked_model(
-            message, self.verifier, self.s.cameras.values(), max_bytes=self.s.model.max_bytes
+            message, self.verifier, self.s.cameras.values(), max_bytes=self.s.max_model_bytes
         )
 
     def install(self, message: TargetModel, *, publish: bool, source: str) -> bool:
@@ -716,6 +681,11 @@ class VisionVerify:
         if self.model is None or message.model_id > self.model_id:
             self.install(message, publish=False, source="network")
 
+    def publish_adapted(self) -> None:
+        if self.model_dirty and self.model is not None:
+            self.model_dirty = False
+            self.pub_model.put(self.model.to_message())
+
     # ------------------------------------------------------------------ recovery
 
     def _on_holder(self, _key: str, alive: bool) -> None:
@@ -727,7 +697,7 @@ class VisionVerify:
     def _conclusive(self) -> bool:
         """Whether a query sent now and answered by nobody means nobody holds a model."""
         return (
-            not self.s.model.holder
+            not self.s.model_holder
             or self._holder_seen.is_set()
             or time.monotonic() >= self._recover_deadline
         )
@@ -739,13 +709,13 @@ class VisionVerify:
         while self.asking and not self.nobody_holds:
             conclusive = self._conclusive()
             self._answered(
-                self.node.query("perception/target_model", self.s.model.query_timeout_s), conclusive
+                self.node.query("perception/target_model", self.s.query_timeout_s), conclusive
             )
             if not self.s.auto_acquire or self.node.stopping:
                 return
             if not self.nobody_holds and self.model is None:
                 left = self._recover_deadline - time.monotonic()
-                self._holder_seen.wait(min(self.s.model.query_period_s, max(left, 0.0)))
+                self._holder_seen.wait(min(self.s.query_period_s, max(left, 0.0)))
 
     def ask(self) -> None:
         """Ask the network for the model, in a thread of its own (a query may wait up to
@@ -755,7 +725,7 @@ class VisionVerify:
         if self._query_thread is not None and self._query_thread.is_alive():
             return
         conclusive = self._conclusive()
-        node, timeout = self.node, self.s.model.query_timeout_s
+        node, timeout = self.node, self.s.query_timeout_s
 
         def run() -> None:
             try:
@@ -786,7 +756,7 @@ class VisionVerify:
     # ------------------------------------------------------------------ commands
 
     def on_command(self, cmd: TargetCommand) -> None:
-        name = cmd.path or self.s.model.file
+        name = cmd.path or self.s.model_file
         try:
             done = self._command(cmd, name)
         except (ModelFileError, InvalidModel, CommandRefused) as exc:

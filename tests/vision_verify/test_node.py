@@ -37,23 +37,12 @@ def _models_home(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
 
 
-#: Rig's keyword -> the nested setting it sets (model.*), to keep the tests short.
-_MODEL_KEYS = {
-    "models_dir": "dir",
-    "model_file": "file",
-    "model_holder": "holder",
-    "recover_wait_s": "recover_wait_s",
-    "query_timeout_s": "query_timeout_s",
-}
-
-
 class Rig:
     def __init__(self, net: FakeNetwork | None = None, **kw) -> None:
         self.net = net or FakeNetwork()
         kw.setdefault("query_timeout_s", 0.05)
         kw.setdefault("model_holder", "")
-        model = {_MODEL_KEYS[k]: kw.pop(k) for k in list(kw) if k in _MODEL_KEYS}
-        self.settings = load_settings(VisionVerifySettings, base={**kw, "model": model})
+        self.settings = load_settings(VisionVerifySettings, base=kw)
         self.node = Node("vision_verify", self.settings, self.net.bus())
         self.svc = setup(self.node, self.settings)
         self._bus = self.net.bus("test")
