@@ -257,7 +257,7 @@ def test_a_reset_stops_the_asking(model_file):
     assert rig.svc.model is None
 
 
-def test_auto_acquire_gives_way_to_the_model_a_holder_keeps(model_file):
+def test_acquire_auto_gives_way_to_the_model_a_holder_keeps(model_file):
     """A restarted worker with acquire.auto: the tracker holds model 3; the worker recovers it
     before it says it is alive, and does not learn another."""
     net = FakeNetwork()
@@ -270,7 +270,7 @@ def test_auto_acquire_gives_way_to_the_model_a_holder_keeps(model_file):
     assert rig.node.health().status == "ok"
 
 
-def test_auto_acquire_learns_when_the_holder_is_alive_and_holds_nothing():
+def test_acquire_auto_learns_when_the_holder_is_alive_and_holds_nothing():
     net = FakeNetwork()
     Holder(net, None)
     rig = Rig(
