@@ -75,12 +75,16 @@ def _fraction(text: str) -> float:
 
 
 def _service_defaults() -> dict:
-    """The vision_verify service's defaults this command follows (one place for them)."""
-    import msgspec
+    """The vision_verify service's defaults this command follows (one place for them): its
+    verifier, and the rule by which a choice counts as confident (``learn.confident_*``)."""
+    from followbot.services.vision_verify.settings import VisionVerifySettings
 
-    from followbot.services.vision_verify.node import VisionVerifySettings
-
-    return {f.name: f.default for f in msgspec.structs.fields(VisionVerifySettings)}
+    s = VisionVerifySettings()
+    return {
+        "verifier": s.verifier,
+        "confident_max_distance": s.learn.confident_max_distance,
+        "confident_margin": s.learn.confident_margin,
+    }
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -133,8 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--adapt-when", choices=("always", "confident"), default="always",
         help="following: update on every box of the target (always), or only when the "
-        "verifier picks the target confidently, by the service's adapt_max_distance and "
-        "adapt_margin (confident)",
+        "verifier picks the target confidently, by the service's "
+        "learn.confident_max_distance and learn.confident_margin (confident)",
     )  # fmt: skip
     p.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     p.add_argument("--plot", metavar="FILE", help="plot the figures against the lag (PNG, SVG)")
@@ -186,8 +190,8 @@ def main(argv: list[str] | None = None) -> int:
             args.video, boxes, verifier, lags=args.lags, frames=args.frames,
             min_visible=args.min_visible, occlusion=args.occlusion == "bottom",
             adapt_rate=args.adapt_rate, adapt_when=args.adapt_when,
-            adapt_max_distance=defaults["adapt_max_distance"],
-            adapt_margin=defaults["adapt_margin"],
+            confident_max_distance=defaults["confident_max_distance"],
+            confident_margin=defaults["confident_margin"],
             on_frame=None if args.quiet else on_frame,
         )  # fmt: skip
     except (FootageError, ValueError) as exc:

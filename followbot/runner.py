@@ -134,7 +134,7 @@ def stage_settings(
         raise RunError(f"unknown preset {preset!r}; presets: {', '.join(PRESETS)}")
     out = {s: dict(PRESETS[preset].get(s, {})) for s in STAGES}
     # thesis 3.3: the model is built at the start, the robot still and the target moving alone
-    out["vision_verify"]["auto_acquire"] = True
+    out["vision_verify"]["acquire"] = {**out["vision_verify"].get("acquire", {}), "auto": True}
     if lockstep:
         out["vision_verify"]["answer_every_scan"] = True  # rule 2 of the lock-step protocol
         # rule 5: what a step combines reaches the stage over other links; wait for it

@@ -7,8 +7,8 @@ and exits 1 on a refusal. For acquire it waits for the new model on perception/t
 and prints it.
 
 save and load take --path NAME: a file name in vision_verify's models folder (its
-``models_dir`` setting, by default ~/.local/share/followbot/models); without it, the
-service's ``model_file`` setting (target.model).
+``files.folder`` setting, by default ~/.local/share/followbot/models); without it, the
+service's ``files.default_name`` setting (target.model).
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--path",
         default="",
-        help="save/load: a file name in vision_verify's models folder (default: its model_file)",
+        help="save/load: a file name in vision_verify's models folder (files.folder; default: "
+        "its files.default_name)",
     )
     p.add_argument(
         "--wait",

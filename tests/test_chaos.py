@@ -102,7 +102,7 @@ def compose_file(path, robot: str, endpoint: str, duration_s: float) -> None:
                 "stop_all_on_exit": True,
             },
             "laser_legs": {"settings": {"zenoh": client}},
-            "vision_verify": {"settings": {"zenoh": client, "auto_acquire": True}},
+            "vision_verify": {"settings": {"zenoh": client, "acquire": {"auto": True}}},
             # the first target by the laser (vision would wait for a model first)
             "tracker": {"settings": {"zenoh": client, "acquire": "nearest"}},
             "controller": {"settings": {"zenoh": client}},

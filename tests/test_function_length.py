@@ -15,8 +15,6 @@ NOT_YET = {
     ("services/sim/camera.py", "_draw_person"),
     ("services/sim/laser.py", "cast_rays"),
     ("services/sim/people.py", "compile_path"),
-    ("services/vision_verify/footage.py", "evaluate"),
-    ("services/vision_verify/node.py", "__init__"),
 }
 
 

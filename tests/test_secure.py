@@ -550,7 +550,7 @@ def test_split_secure_admits_only_its_certificates_and_each_topic_only_from_its_
                    FOLLOWBOT_PORT=str(port), FOLLOWBOT_ROBOT=robot, FOLLOWBOT_CERTS=str(certs),
                    FOLLOWBOT_SCENARIO="thesis_5_2_1_arc",
                    XDG_DATA_HOME=str(tmp_path / "data"))  # fmt: skip
-        models = tmp_path / "data" / "followbot" / "models"  # vision_verify's models_dir
+        models = tmp_path / "data" / "followbot" / "models"  # vision_verify's files.folder
         client = ["--robot", robot, "--mode", "client", "--connect", endpoint]
         logs: dict[str, Path] = {}
         procs: dict[str, subprocess.Popen] = {}

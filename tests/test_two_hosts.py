@@ -73,7 +73,7 @@ def test_scans_cross_from_robot_to_offboard_and_back_after_an_outage(tmp_path, r
 def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(tmp_path, robot):
     """compose/split.yaml on two hosts: the robot follows; the offboard vision machine dies
     (the robot keeps tracking on the laser and says no_vision); it comes back, with
-    auto_acquire as before, and verifies again with the target model recovered from the
+    acquire.auto as before, and verifies again with the target model recovered from the
     robot, not rebuilt."""
     import yaml
     from conftest import REPO
@@ -84,7 +84,7 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
         env = dict(os.environ, PYTHONUNBUFFERED="1", RUST_LOG="error", ROBOT_HOST=bot.address,
                    FOLLOWBOT_ROBOT=robot, FOLLOWBOT_SCENARIO="thesis_5_2_1_arc")  # fmt: skip
         vision_cfg = tmp_path / "vision.yaml"
-        vision = {"robot": robot, "verifier": "histogram", "auto_acquire": True,
+        vision = {"robot": robot, "verifier": "histogram", "acquire": {"auto": True},
                   "zenoh": {"mode": "client", "connect": [f"tcp/{bot.address}:7447"]}}  # fmt: skip
         vision_cfg.write_text(yaml.safe_dump(vision))
         logs = {n: (tmp_path / f"{n}.log").open("w") for n in ("up", "rec", "v1", "v2")}
@@ -118,7 +118,7 @@ def test_split_deployment_keeps_tracking_without_vision_and_recovers_the_model(t
             v1.wait(5)
             time.sleep(9)
             t_back = time.time_ns()
-            # the same settings, auto_acquire too: it must take the robot's model back
+            # the same settings, acquire.auto too: it must take the robot's model back
             procs.append(start(off, "v2", "run", "vision_verify", "--config", str(vision_cfg)))
             time.sleep(9)
             t_end = time.time_ns()

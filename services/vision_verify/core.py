@@ -33,8 +33,10 @@ outside the image is not judged (thesis 4.4.3: the centre decides whether it is 
 
 Choice (thesis 3.5.3): the smallest distance wins. Unlike the thesis, a rejection threshold
 may refuse every candidate (``chosen = -1``), so a bystander is not taken for an occluded
-target. Optional slow online update of the model (the thesis's first item of future work):
-blend the chosen candidate's histograms into the model when the match is confident.
+target. A slow update of a model (the thesis's first item of future work),
+:func:`adapt_features`, blends a later view's histograms into it; the service does not use it
+(the model drifts towards what surrounds the target, docs/vision_verify.md), the footage
+measurement's *following* protocol does.
 """
 
 from __future__ import annotations
@@ -742,7 +744,7 @@ class Verifier(Protocol):
 
     ``learn`` describes the target in the model rectangle; ``distances`` judges the candidates'
     views of one frame against the model (None for views not judged); ``describe`` gives the
-    features of one rectangle, for the online update (None: the verifier does not adapt).
+    features of one rectangle, for :func:`adapt_features` (None: the verifier does not adapt).
     A verifier may also have ``check_model(model)``, raising ValueError when the model's
     features are not what its ``learn`` gives (:func:`checked_model` calls it).
     """

@@ -12,10 +12,11 @@ frame t, both frames inside the range evaluated. Every such choice is judged twi
 
 * **one view**: the model is learnt from p's box in frame t - N alone;
 * **following**: the model is learnt from p's first usable box in the range, then updated with
-  p's box in every later frame up to and including t - N, by the verifier's online update
-  (``describe`` + :func:`..core.adapt_features`, the service's ``adapt_rate``): what a robot
-  has seen after tracking p with confidence until N frames ago. The other people's boxes are
-  the bystanders; no verifier learns from them. A verifier without an update (``describe``
+  p's box in every later frame up to and including t - N: what a robot has seen after
+  tracking p with confidence until N frames ago. A verifier that learns online (``update``:
+  online) learns p as the target and the other people's boxes as bystanders; any other blends
+  p's features into the model (``describe`` + :func:`..core.adapt_features` at
+  ``adapt_rate``) and learns nothing from the others. A verifier with neither (``describe``
   gives None: face) keeps its model from p's first view.
 
 Then the verifier judges every usable box of frame t against the model, and
@@ -40,7 +41,7 @@ import csv
 import math
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, NamedTuple
@@ -490,6 +491,111 @@ def open_video(path: str | Path):
     return cap
 
 
+@dataclass(frozen=True)
+class FollowRule:
+    """How the *following* protocol updates a model from the target's later boxes."""
+
+    rate: float = 0.02
+    """Update rate per frame (0: the first view only)."""
+    when: Literal["always", "confident"] = "always"
+    """``always``: on every usable box of the target; ``confident``: only when the verifier
+    itself picks the target (:func:`..core.confident`)."""
+    max_distance: float = 0.4
+    """``confident``: the target's distance is at most this ..."""
+    margin: float = 0.2
+    """... and at least this much below every other box's."""
+
+
+@dataclass
+class _Run:
+    """What one evaluation accumulates, frame by frame: the choices due in later frames, each
+    person's following model, and the figures."""
+
+    verifier: Verifier
+    lags: list[int]
+    end: int
+    rule: FollowRule
+    on_choice: Callable[[Choice], None] | None
+    threshold: float | None = None
+    tallies: dict[tuple[str, int], Tally] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    pending: dict[int, list[tuple[str, int, int, Model]]] = field(
+        default_factory=lambda: defaultdict(list)
+    )
+    following: dict[int, Model] = field(default_factory=dict)
+    first_call_ms: list[float] = field(default_factory=list)
+    adapts: bool = True
+    """False once the verifier turned out to have no online update."""
+
+    def __post_init__(self) -> None:
+        self.threshold = getattr(self.verifier, "default_threshold", None)
+        self.tallies = {(p, n): Tally(p, n) for p in PROTOCOLS for n in self.lags}
+        self._ids = iter(range(1, 1 << 62))  # a fresh id for each model (verifiers cache by id)
+
+    def frame(self, f: int, frame: ImageFeatures, cands: list[Candidate], camera: Camera) -> None:
+        """One video frame: judge the choices due in it, then learn its models."""
+        views = [view_of(c, i, camera) for i, c in enumerate(cands)]
+        self.judge_due(f, frame, cands, views)
+        self.learn(f, frame, cands, views, camera)
+
+    def judge_due(
+        self, f: int, frame: ImageFeatures, cands: list[Candidate], views: list[View]
+    ) -> None:
+        """The choices whose choice frame is ``f``, each against the model it waited with."""
+        index = {c.id: i for i, c in enumerate(cands)}
+        timed_first = False
+        for protocol, lag, pid, model in self.pending.pop(f, ()):
+            target = index.get(pid)
+            if target is None:
+                self.counts["choices_target_not_usable"] += 1
+                continue
+            if len(cands) < 2:
+                self.counts["choices_alone"] += 1
+                continue
+            t0, c0 = time.perf_counter(), time.thread_time()
+            ds = _distances(self.verifier, frame, views, model)
+            wall = (time.perf_counter() - t0) * 1e3
+            cpu = (time.thread_time() - c0) * 1e3
+            if not timed_first:  # the first judgement pays the frame's preparation
+                self.first_call_ms.append(wall)
+                timed_first = True
+            outcome = score(ds, target, self.threshold)
+            self.tallies[protocol, lag].add(outcome, len(cands), wall, cpu)
+            if self.on_choice is not None:
+                ids = [c.id for c in cands]
+                self.on_choice(Choice(protocol, lag, f, pid, ids, ds, outcome))
+
+    def learn(
+        self,
+        f: int,
+        frame: ImageFeatures,
+        cands: list[Candidate],
+        views: list[View],
+        camera: Camera,
+    ) -> None:
+        """Each person's one-view model of frame ``f`` and following model updated with it,
+        both waiting for the choices ``lags`` frames later."""
+        due = [n for n in self.lags if f + n < self.end]
+        for i, c in enumerate(cands):
+            follow = self.following.get(c.id)
+            one = None
+            if due or follow is None:
+                one = learn_model(self.verifier, frame, c, camera, next(self._ids))
+            if follow is None:
+                follow = one
+            elif self.rule.rate > 0:
+                follow = _updated(
+                    self.verifier, frame, views, i, follow, self.rule, next(self._ids)
+                )
+                if follow is None:
+                    self.adapts = False
+                    follow = self.following[c.id]
+            self.following[c.id] = follow
+            for n in due:
+                self.pending[f + n].append(("one view", n, c.id, one))
+                self.pending[f + n].append(("following", n, c.id, follow))
+
+
 def evaluate(
     video: str | Path,
     boxes: BoxFile,
@@ -501,8 +607,8 @@ def evaluate(
     occlusion: bool = True,
     adapt_rate: float = 0.02,
     adapt_when: Literal["always", "confident"] = "always",
-    adapt_max_distance: float = 0.4,
-    adapt_margin: float = 0.2,
+    confident_max_distance: float = 0.4,
+    confident_margin: float = 0.2,
     on_frame: Callable[[int, int, int], None] | None = None,
     on_choice: Callable[[Choice], None] | None = None,
 ) -> Report:
@@ -511,9 +617,10 @@ def evaluate(
 
     ``adapt_rate``: the following model's update rate per frame; ``adapt_when="confident"``
     updates only when the verifier itself picks the target with the service's rule
-    (:func:`..core.confident`: distance <= ``adapt_max_distance``, ``adapt_margin`` below every
-    other box), ``"always"`` whenever the target's box is usable. ``on_frame(frame, first,
-    end)`` is called after each frame (progress), ``on_choice`` with every choice judged."""
+    (:func:`..core.confident`: distance <= ``confident_max_distance``, ``confident_margin``
+    below every other box), ``"always"`` whenever the target's box is usable. ``on_frame(frame,
+    first, end)`` is called after each frame (progress), ``on_choice`` with every choice
+    judged."""
     lags = sorted(set(lags))
     if not lags or lags[0] < 1:
         raise ValueError("lags must be whole numbers of frames >= 1")
@@ -523,25 +630,13 @@ def evaluate(
     end = frames[1] if frames[1] is not None else max(boxes.frames) + 1
     if first < 0 or end <= first:
         raise ValueError(f"empty frame range {first}:{end}")
-    threshold = getattr(verifier, "default_threshold", None)
+    rule = FollowRule(adapt_rate, adapt_when, confident_max_distance, confident_margin)
+    run = _Run(verifier, lags, end, rule, on_choice)
     cap = open_video(video)
     t_start = time.perf_counter()
-    tallies = {(p, n): Tally(p, n) for p in PROTOCOLS for n in lags}
-    counts: dict[str, int] = defaultdict(int)
-    pending: dict[int, list[tuple[str, int, int, Model]]] = defaultdict(list)
-    following: dict[int, Model] = {}
-    first_call_ms: list[float] = []
-    ids = iter(range(1, 1 << 62))  # a fresh model id for each model (verifiers cache by id)
-    adapts = True
-    camera = None
+    camera, read = None, first  # read: the frame after the last one decoded
     try:
-        f = 0
-        while f < first and cap.grab():  # skipped frames are not decoded
-            f += 1
-        while f < end:
-            ok, bgr = cap.read()
-            if not ok:
-                break
+        for f, bgr in _read_frames(cap, first, end):
             if camera is None:
                 camera = footage_camera(bgr.shape[1], bgr.shape[0])
                 width, height = bgr.shape[1], bgr.shape[0]
@@ -552,78 +647,48 @@ def evaluate(
             cands, hidden = frame_candidates(
                 boxes.frames.get(f, []), width, height, min_visible, occlusion
             )
-            counts["boxes"] += len(cands) + hidden
-            counts["boxes_not_usable"] += hidden
-            views = [view_of(c, i, camera) for i, c in enumerate(cands)]
-            index = {c.id: i for i, c in enumerate(cands)}
-            # choices due in this frame
-            timed_first = False
-            for protocol, lag, pid, model in pending.pop(f, ()):
-                target = index.get(pid)
-                if target is None:
-                    counts["choices_target_not_usable"] += 1
-                    continue
-                if len(cands) < 2:
-                    counts["choices_alone"] += 1
-                    continue
-                t0, c0 = time.perf_counter(), time.thread_time()
-                ds = _distances(verifier, frame, views, model)
-                wall = (time.perf_counter() - t0) * 1e3
-                cpu = (time.thread_time() - c0) * 1e3
-                if not timed_first:
-                    first_call_ms.append(wall)
-                    timed_first = True
-                outcome = score(ds, target, threshold)
-                tallies[protocol, lag].add(outcome, len(cands), wall, cpu)
-                if on_choice is not None:
-                    ids_ = [c.id for c in cands]
-                    on_choice(Choice(protocol, lag, f, pid, ids_, ds, outcome))
-            # models learnt in this frame, for the choices lags later
-            due = [n for n in lags if f + n < end]
-            for i, c in enumerate(cands):
-                follow = following.get(c.id)
-                one = None
-                if due or follow is None:
-                    one = learn_model(verifier, frame, c, camera, next(ids))
-                if follow is None:
-                    follow = one
-                elif adapt_rate > 0:
-                    follow = _updated(
-                        verifier, frame, views, i, follow, adapt_rate, adapt_when,
-                        adapt_max_distance, adapt_margin, next(ids),
-                    )  # fmt: skip
-                    if follow is None:
-                        adapts = False
-                        follow = following[c.id]
-                following[c.id] = follow
-                for n in due:
-                    pending[f + n].append(("one view", n, c.id, one))
-                    pending[f + n].append(("following", n, c.id, follow))
+            run.counts["boxes"] += len(cands) + hidden
+            run.counts["boxes_not_usable"] += hidden
+            run.frame(f, frame, cands, camera)
             if on_frame is not None:
                 on_frame(f, first, end)
-            f += 1
+            read = f + 1
     finally:
         cap.release()
     if camera is None:
         raise FootageError(f"{video}: no frame could be read in {first}:{end}")
-    if f < end:
-        counts["boxes_after_the_video"] = sum(
-            len(b) for k, b in boxes.frames.items() if f <= k < end
+    if read < end:
+        run.counts["boxes_after_the_video"] = sum(
+            len(b) for k, b in boxes.frames.items() if read <= k < end
         )
     return Report(
         video=str(video),
         width=width,
         height=height,
-        frames=(first, f),
+        frames=(first, read),
         verifier=verifier.name,
         settings=msgspec.to_builtins(getattr(verifier, "settings", None)) or {},
-        threshold=threshold,
-        adapts=adapts and adapt_rate > 0,
-        tallies=list(tallies.values()),
-        counts=dict(counts),
-        first_call_ms=first_call_ms,
+        threshold=run.threshold,
+        adapts=run.adapts and adapt_rate > 0,
+        tallies=list(run.tallies.values()),
+        counts=dict(run.counts),
+        first_call_ms=run.first_call_ms,
         elapsed_s=time.perf_counter() - t_start,
     )
+
+
+def _read_frames(cap, first: int, end: int) -> Iterator[tuple[int, np.ndarray]]:
+    """Video frames ``first`` .. ``end - 1`` with their index, decoded; fewer when the video
+    ends sooner (the frames before ``first`` are skipped, not decoded)."""
+    f = 0
+    while f < first and cap.grab():
+        f += 1
+    while f < end:
+        ok, bgr = cap.read()
+        if not ok:
+            return
+        yield f, bgr
+        f += 1
 
 
 def _updated(
@@ -632,17 +697,14 @@ def _updated(
     views: list[View],
     target: int,
     model: Model,
-    rate: float,
-    when: str,
-    max_distance: float,
-    margin: float,
+    rule: FollowRule,
     model_id: int,
 ) -> Model | None:
     """``model`` updated with the target's box (a new Model; the old one is unchanged, it is
     some pending choice's snapshot); None when the verifier has no update."""
-    if when == "confident":
+    if rule.when == "confident":
         ds = _distances(verifier, frame, views, model)
-        if not confident(ds, target, max_distance, margin):
+        if not confident(ds, target, rule.max_distance, rule.margin):
             return model
     update = getattr(verifier, "update", None)
     if update is not None:  # a verifier that learns from the target and the bystanders
@@ -654,5 +716,5 @@ def _updated(
     if seen is None:
         return None
     return msgspec.structs.replace(
-        model, model_id=model_id, features=adapt_features(model.features, seen, rate)
+        model, model_id=model_id, features=adapt_features(model.features, seen, rule.rate)
     )

@@ -30,6 +30,7 @@ import secrets
 import stat
 import tempfile
 from pathlib import Path
+from typing import Annotated
 
 import cv2
 import msgspec
@@ -62,6 +63,17 @@ _KERNEL = np.array([0.25, 0.5, 0.25], dtype=np.float32)  # thesis 4.2.1.1: 3-tap
 
 
 class AcquireSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Learning a model from the target moving alone in front of the still robot (thesis
+    4.2): ``--set acquire.auto=true``."""
+
+    auto: bool = False
+    """Learn a model on start, without a command (one mover, still robot), when nobody on the
+    network holds one: it is used only after a query sent once ``recovery.holder`` was seen
+    alive (or ``recovery.holder_wait_s`` after start) found no model, and is dropped if a
+    model is recovered first (docs/vision_verify.md "The target model")."""
+    timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 30.0
+    """An acquisition (an acquire command, or ``auto``) that has learnt no model after this
+    long (s) gives up, with a warning (counted as acquire_timeout)."""
     diff_threshold: float = 80.0  # thesis 4.2.1.1: 80 of 255
     min_area_fraction: float = 0.4  # thesis eq. 4-2: T_A = 0.4 x 320 x 240
     laser_threshold_m: float = 0.030  # thesis 4.2.2: 30 mm (laser accuracy +-15 mm)

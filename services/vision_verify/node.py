@@ -8,12 +8,12 @@ positions judged), perception/target_model (also answers queries, so a restarted
 second worker recovers the model).
 
 The model's life (docs/vision_verify.md "The target model"): on start the service asks the
-network for the model, and keeps asking every ``query_period_s`` while it has none, so a
+network for the model, and keeps asking every ``recovery.query_period_s`` while it has none, so a
 restarted worker recovers the model the tracker keeps. Every model -- from the network, a
 query reply or a file -- is checked (core.checked_model) before it replaces the one in use;
-one that fails is refused, counted in Health.rejected and logged. With ``auto_acquire`` a
+one that fails is refused, counted in Health.rejected and logged. With ``acquire.auto`` a
 model is learnt only when nobody on the network holds one. Save and load commands name files
-of one folder (``models_dir``; model.ModelFiles); a refused command is counted in
+of one folder (``files.folder``; model.ModelFiles); a refused command is counted in
 Health.rejected[perception/target_command], logged, and reported in Health.notes
 (``command <action> <stamp_ns> refused: <why>``), where ``followbot target`` reads it.
 
@@ -39,10 +39,8 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterable
-from typing import Annotated, Any, Literal
 
 import cv2
-import msgspec
 import numpy as np
 
 from followbot.schemas import (
@@ -59,142 +57,32 @@ from followbot.services.runtime.mount import candidates_in_base
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.plugins import PluginSettingsError
 from followbot.services.runtime.service import service_main
-from followbot.services.runtime.settings import NodeSettings
 from followbot.services.runtime.stats import RateLimitedLog
 
 from .core import (
     Camera,
     ImageFeatures,
     InvalidModel,
+    Judgement,
     Model,
     View,
-    adapt_features,
     checked_model,
     confident,
     judge,
 )
 from .model import (
-    MAX_MODEL_BYTES,
-    AcquireSettings,
     ModelBuilder,
     ModelFileError,
     ModelFiles,
     build_model,
     default_models_dir,
 )
+from .settings import VisionVerifySettings
 from .verifiers import make_verifier
 
 __all__ = ["VisionVerify", "VisionVerifySettings", "main", "setup"]
 
 _NS = 1_000_000_000
-_Pos = Annotated[float, msgspec.Meta(gt=0)]
-
-
-class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
-    verifier: str = "histogram"
-    """histogram (thesis), face (seed 002), meanshift (seed 003), or any installed plugin."""
-    verifier_settings: dict[str, Any] = {}
-    """The verifier's own settings (see its settings_type); unknown keys are errors."""
-    cameras: dict[str, Camera] = msgspec.field(default_factory=lambda: {"default": Camera()})
-    """Camera calibrations by the Image message's ``intrinsics_id``."""
-    threshold: Annotated[float, msgspec.Meta(ge=0)] | None = None
-    """Rejection threshold on the distance; None: the verifier's default."""
-    reject: bool = True
-    """False: always take the most alike candidate (the thesis's rule)."""
-    pair_tolerance_s: Annotated[float, msgspec.Meta(ge=0)] = 0.06
-    """A scan's candidates are judged on the image nearest their stamp, if that is within
-    this (s); else the scan waits for one (or is dropped)."""
-    max_lag_s: _Pos = 0.5
-    """Scans further than this behind the newest one are dropped unjudged."""
-    scan_buffer: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 32
-    """At most this many candidates messages wait for their image; beyond, the oldest are
-    dropped unjudged (counted as scan_stale)."""
-    answer_every_scan: bool = False
-    """Lock-step: publish exactly one verification per candidates message."""
-    image_wait_s: _Pos = 0.2
-    """Lock-step: how long a scan waits for an image before an empty answer."""
-    min_rect_side_px: Annotated[int, msgspec.Meta(ge=2)] = 8
-    """A candidate whose image rectangle (clipped to the image) has a side shorter than this
-    (px) is not judged (too_small): too few pixels for a histogram."""
-    max_rect_width_factor: _Pos = 3.0
-    """Candidates whose rectangle is wider than this many image widths are skipped."""
-    min_visible_fraction: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = 0.5
-    """Beyond the thesis: the columns of a candidate's rectangle that nearer candidates'
-    rectangles cover are not its own (the laser gives the depth order). A candidate is judged
-    on the widest run of columns left, and skipped as ``occluded`` (counted) when that run is
-    under this fraction of its width. None: judge whole rectangles, as the thesis."""
-    occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] | None = 0.3
-    """Beyond the thesis: what the laser sees in front of a candidate. The detector reports
-    only people near the target (thesis criterion 3), so a passer-by walking between the
-    camera and the target is no candidate, and its pixels would be judged as the target's.
-    A leg-like return of the candidates message's ``horizon`` (core.horizon_covers: a narrow
-    run standing in front of its neighbours; walls and pillars are not) more than this nearer
-    than a candidate stands for a body ``occluder_half_width_m`` either side; what it covers
-    is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only."""
-    occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
-    """With occlusion_margin_m: the half width (m) of the body a leg-like return in front of
-    a candidate stands for."""
-    occlusion_abstain_fraction: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = 0.25
-    """With occlusion_margin_m: the whole rectangle is judged as before, and a candidate is
-    reported unjudged only when it would be rejected and those returns cover at least this
-    share of its columns: a view with someone unreported in front of it is trusted when it
-    matches, not when it rejects (the tracker then counts no rejection). Default chosen by the
-    closed-loop runs of docs/tracker_log.md. None: cut the covered columns from the
-    rectangle, as nearer candidates' (min_visible_fraction; measured worse)."""
-    acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
-    auto_acquire: bool = False
-    """Learn a model on start, without a command (one mover, still robot), when nobody on the
-    network holds one: it is used only after a query sent once ``model_holder`` was seen
-    alive (or ``recover_wait_s`` after start) found no model, and is dropped if a model is
-    recovered first (docs/vision_verify.md "The target model")."""
-    acquire_timeout_s: _Pos = 30.0
-    """An acquisition (an acquire command, or auto_acquire) that has learnt no model after
-    this long (s) gives up, with a warning (counted as acquire_timeout)."""
-    models_dir: str = ""
-    """Folder of the files that save/load commands name; nothing outside it is read or
-    written. "": $XDG_DATA_HOME/followbot/models (~/.local/share/followbot/models). A
-    relative path is taken from the working directory at start."""
-    model_file: str = "target.model"
-    """Name (a file of models_dir) for save/load commands that name none; "": none."""
-    max_model_bytes: Annotated[int, msgspec.Meta(ge=1024, le=1 << 30)] = MAX_MODEL_BYTES
-    """Largest model file saved or loaded, and largest model (its features) taken from the
-    network."""
-    query_model_on_start: bool = True
-    """Ask the network for the model on start, and again every query_period_s while there
-    is none (until one is installed or a reset command drops it)."""
-    query_timeout_s: _Pos = 1.0
-    """How long one query waits for answers."""
-    query_period_s: _Pos = 1.0
-    """Seconds between two queries for the model while this service has none."""
-    model_holder: str = "tracker"
-    """The service that keeps the model for a restarted worker (the tracker serves the last
-    model it got): once its liveliness is seen, a query it does not answer means it holds
-    none. "": no such service."""
-    recover_wait_s: _Pos = 3.0
-    """With auto_acquire and ``model_holder`` not seen alive: how long after start a query
-    still counts as possibly missing a holder (nobody holds a model is concluded only from
-    a query sent later)."""
-    adapt_rate: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
-    """Online model update rate per confident match (0: off; e.g. 0.02)."""
-    adapt_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
-    """With adapt_rate: the model is updated only from a chosen candidate at most this
-    distance from it ..."""
-    adapt_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
-    """... and at least this much nearer than every other candidate."""
-    adapt_publish_period_s: _Pos = 5.0
-    """With adapt_rate: an updated model is published (for the model holder) at most this
-    often (s)."""
-    learn_from: Literal["tracker", "confident", "off"] = "tracker"
-    """For a verifier that learns online (``online``): which candidate of a judged scan is the
-    target it learns from, all others in view being bystanders. ``tracker``: the candidate the
-    tracker's state for that scan (tracking/target, status tracking) lies on, within
-    ``learn_gate_m`` and with no other candidate that near; ``confident``: the verifier's own
-    choice when confident (``adapt_max_distance``, ``adapt_margin``); ``off``: never."""
-    learn_gate_m: _Pos = 0.4
-    """``learn_from: tracker``: how near the tracker's target a candidate must lie to be it."""
-    learn_scans: Annotated[int, msgspec.Meta(ge=1, le=64)] = 8
-    """``learn_from: tracker``: judged scans kept waiting for the tracker's state of their
-    stamp (it comes after the verification, which the tracker uses)."""
 
 
 class CommandRefused(ValueError):
@@ -232,24 +120,32 @@ class VisionVerify:
                 if settings.threshold is not None
                 else getattr(self.verifier, "default_threshold", None)
             )
+        self.files = ModelFiles(
+            settings.files.folder or default_models_dir(), settings.files.max_bytes
+        )
+        if settings.files.default_name:
+            try:
+                self.files.check_name(settings.files.default_name)
+            except ModelFileError as exc:  # a settings error: exit 2
+                raise ValueError(f"files.default_name: {exc}") from None
+        self._log = RateLimitedLog(node.log)
+        self._init_state()
+        self._connect()
+        node.set_condition("model", "degraded", "no target model")
+        if settings.acquire.auto:
+            self.start_acquire(auto=True)
+
+    def _init_state(self) -> None:
+        """The model, what waits to be judged, and what the acquisition has seen."""
         self.model: Model | None = None
         self.model_id = 0  # the largest id installed or built here
-        self.files = ModelFiles(
-            settings.models_dir or default_models_dir(), settings.max_model_bytes
-        )
-        if settings.model_file:
-            try:
-                self.files.check_name(settings.model_file)
-            except ModelFileError as exc:
-                raise ValueError(f"model_file: {exc}") from None  # a settings error: exit 2
-        self._log = RateLimitedLog(node.log)
         # Recovery (see the module docstring): ask while there is no model; an auto-learnt
         # model waits (held_build) until a conclusive query found nobody holding one.
-        self.asking = settings.query_model_on_start
-        self.nobody_holds = not settings.query_model_on_start
+        self.asking = self.s.recovery.query_on_start
+        self.nobody_holds = not self.s.recovery.query_on_start
         self.held_build: Model | None = None
         self._holder_seen = threading.Event()
-        self._recover_deadline = time.monotonic() + settings.recover_wait_s
+        self._recover_deadline = time.monotonic() + self.s.recovery.holder_wait_s
         self._query_thread: threading.Thread | None = None
         self.last_command = ""
         self.frames: list[_Frame] = []  # the two newest decoded images, oldest first
@@ -259,18 +155,20 @@ class VisionVerify:
         self.last_judged_ns = -1
         self.counts: dict[str, int] = {}
         self.builder: ModelBuilder | None = None
-        self.builder_auto = False  # the builder runs for auto_acquire, not for a command
+        self.builder_auto = False  # the builder runs for acquire.auto, not for a command
         self.acquire_deadline = 0.0
         self.scans: OrderedDict[int, np.ndarray] = OrderedDict()  # acquisition only
         # lock-step acquisition: images wait here so the builder sees every input in stamp order
         self.acq_images: list[tuple[int, np.ndarray, float]] = []
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
-        self.model_dirty = False
-        # learn_from tracker: judged scans (stamp -> frame, views, model id) awaiting the
+        # learn.source tracker: judged scans (stamp -> frame, views, model id) awaiting the
         # tracker's state of the same stamp
         self.judged: OrderedDict[int, tuple[ImageFeatures, list[View], int]] = OrderedDict()
         self.learns = getattr(self.verifier, "update", None) is not None
 
+    def _connect(self) -> None:
+        """Publishers, subscriptions, timers and the model holder's liveliness."""
+        node, settings = self.node, self.s
         self.pub_verification = node.publisher("perception/verification")
         self.pub_model = node.publisher("perception/target_model", reliable=True, serve_last=True)
         # lock-step: every image (none dropped by a busy loop), so reruns see the same frames
@@ -307,7 +205,7 @@ class VisionVerify:
         node.subscribe(
             "sensors/scan", self.on_scan, capacity=16, dispatch="loop", on_restart=self.scans.clear
         )
-        if self.learns and settings.learn_from == "tracker":
+        if self.learns and settings.learn.source == "tracker":
             node.subscribe(
                 "tracking/target",
                 self.on_target,
@@ -316,14 +214,10 @@ class VisionVerify:
                 on_restart=self.judged.clear,
             )
         node.every(0.02, self.on_timer, name="vision_timer")
-        node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
         node.every(settings.health_period_s, self.update_notes, name="notes")
-        node.every(settings.query_period_s, self.ask, name="ask_model")
-        if settings.model_holder:
-            node.bus.watch_liveliness(node.keys.alive(settings.model_holder), self._on_holder)
-        node.set_condition("model", "degraded", "no target model")
-        if settings.auto_acquire:
-            self.start_acquire(auto=True)
+        node.every(settings.recovery.query_period_s, self.ask, name="ask_model")
+        if settings.recovery.holder:
+            node.bus.watch_liveliness(node.keys.alive(settings.recovery.holder), self._on_holder)
 
     # ------------------------------------------------------------------ helpers
 
@@ -483,7 +377,7 @@ class VisionVerify:
                     self._drop(stamp, "scan_no_image")
         if self.builder is not None and now > self.acquire_deadline:
             self.node.log.warning(
-                "no target model after %.0f s of trying", self.s.acquire_timeout_s
+                "no target model after %.0f s of trying", self.s.acquire.timeout_s
             )
             self.count("acquire_timeout")
             self.builder = None
@@ -502,11 +396,11 @@ class VisionVerify:
                 xy,
                 frame.pan_rad,
                 self.threshold,
-                min_visible_fraction=self.s.min_visible_fraction,
+                min_visible_fraction=self.s.occlusion.min_visible_fraction,
                 horizon=msg.horizon,
-                horizon_margin_m=self.s.occlusion_margin_m,
-                horizon_half_width_m=self.s.occluder_half_width_m,
-                abstain_fraction=self.s.occlusion_abstain_fraction,
+                horizon_margin_m=self.s.occlusion.laser_margin_m,
+                horizon_half_width_m=self.s.occlusion.laser_half_width_m,
+                abstain_fraction=self.s.occlusion.laser_abstain_fraction,
                 min_side_px=self.s.min_rect_side_px,
                 max_width_factor=self.s.max_rect_width_factor,
             )
@@ -548,24 +442,24 @@ class VisionVerify:
                 threshold=self.threshold,
             )
         )
-        s = self.s
         if self.learns:
-            if s.learn_from == "tracker":
-                self.judged[msg.stamp_ns] = (frame.features, j.views, model.model_id)
-                while len(self.judged) > s.learn_scans:
-                    self.judged.popitem(last=False)
-            elif s.learn_from == "confident" and confident(
-                j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
-            ):
-                self.learn(frame.features, j.views, j.chosen)
-            return
-        if s.adapt_rate > 0 and confident(
-            j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
+            self._learn_from_judged(msg.stamp_ns, frame.features, j, model.model_id)
+
+    def _learn_from_judged(
+        self, stamp_ns: int, frame: ImageFeatures, j: Judgement, model_id: int
+    ) -> None:
+        """An online verifier after a judged scan: keep the scan until the tracker's state of
+        its stamp names the target (``learn.source: tracker``), or learn the verifier's own
+        choice now when it is confident (``confident``)."""
+        learn = self.s.learn
+        if learn.source == "tracker":
+            self.judged[stamp_ns] = (frame, j.views, model_id)
+            while len(self.judged) > learn.scans:
+                self.judged.popitem(last=False)
+        elif learn.source == "confident" and confident(
+            j.distances, j.chosen, learn.confident_max_distance, learn.confident_margin
         ):
-            seen = self.verifier.describe(frame.features, j.views[j.chosen].rect)
-            if seen is not None:
-                model.features = adapt_features(model.features, seen, s.adapt_rate)
-                self.model_dirty = True
+            self.learn(frame, j.views, j.chosen)
 
     def learn(self, frame: ImageFeatures, views: list[View], target: int) -> None:
         """Let an online verifier learn ``views[target]`` as the target, the others as
@@ -593,7 +487,7 @@ class VisionVerify:
         near = [
             i
             for i, v in enumerate(views)
-            if math.hypot(v.x_m - x, v.y_m - y) <= self.s.learn_gate_m
+            if math.hypot(v.x_m - x, v.y_m - y) <= self.s.learn.gate_m
         ]
         if len(near) != 1:
             self.count("learn_ambiguous" if near else "learn_target_not_candidate")
@@ -644,7 +538,7 @@ class VisionVerify:
     def check(self, message: TargetModel) -> Model:
         """``message`` as a model this service can use; InvalidModel otherwise."""
         return checked_model(
-            message, self.verifier, self.s.cameras.values(), max_bytes=self.s.max_model_bytes
+            message, self.verifier, self.s.cameras.values(), max_bytes=self.s.files.max_bytes
         )
 
     def install(self, message: TargetModel, *, publish: bool, source: str) -> bool:
@@ -681,11 +575,6 @@ class VisionVerify:
         if self.model is None or message.model_id > self.model_id:
             self.install(message, publish=False, source="network")
 
-    def publish_adapted(self) -> None:
-        if self.model_dirty and self.model is not None:
-            self.model_dirty = False
-            self.pub_model.put(self.model.to_message())
-
     # ------------------------------------------------------------------ recovery
 
     def _on_holder(self, _key: str, alive: bool) -> None:
@@ -697,35 +586,36 @@ class VisionVerify:
     def _conclusive(self) -> bool:
         """Whether a query sent now and answered by nobody means nobody holds a model."""
         return (
-            not self.s.model_holder
+            not self.s.recovery.holder
             or self._holder_seen.is_set()
             or time.monotonic() >= self._recover_deadline
         )
 
     def recover(self) -> None:
-        """Setup, before the service says it is alive: ask once; with auto_acquire, go on
-        asking until a model is recovered or nobody holds one (at most recover_wait_s plus a
+        """Setup, before the service says it is alive: ask once; with acquire.auto, go on
+        asking until a model is recovered or nobody holds one (at most recovery.holder_wait_s plus a
         query), so a lock-step source, which waits for every stage, starts only then."""
         while self.asking and not self.nobody_holds:
             conclusive = self._conclusive()
             self._answered(
-                self.node.query("perception/target_model", self.s.query_timeout_s), conclusive
+                self.node.query("perception/target_model", self.s.recovery.query_timeout_s),
+                conclusive,
             )
-            if not self.s.auto_acquire or self.node.stopping:
+            if not self.s.acquire.auto or self.node.stopping:
                 return
             if not self.nobody_holds and self.model is None:
                 left = self._recover_deadline - time.monotonic()
-                self._holder_seen.wait(min(self.s.query_period_s, max(left, 0.0)))
+                self._holder_seen.wait(min(self.s.recovery.query_period_s, max(left, 0.0)))
 
     def ask(self) -> None:
         """Ask the network for the model, in a thread of its own (a query may wait up to
-        query_timeout_s); the answers come back to the loop."""
+        recovery.query_timeout_s); the answers come back to the loop."""
         if not self.asking or self.model is not None:
             return
         if self._query_thread is not None and self._query_thread.is_alive():
             return
         conclusive = self._conclusive()
-        node, timeout = self.node, self.s.query_timeout_s
+        node, timeout = self.node, self.s.recovery.query_timeout_s
 
         def run() -> None:
             try:
@@ -748,7 +638,7 @@ class VisionVerify:
                 return
         if conclusive and not self.nobody_holds:
             self.nobody_holds = True
-            if self.s.auto_acquire:
+            if self.s.acquire.auto:
                 self.node.log.info("nobody on the network holds a target model: learning one")
             if self.held_build is not None:
                 self._use_built(self.held_build)
@@ -756,7 +646,7 @@ class VisionVerify:
     # ------------------------------------------------------------------ commands
 
     def on_command(self, cmd: TargetCommand) -> None:
-        name = cmd.path or self.s.model_file
+        name = cmd.path or self.s.files.default_name
         try:
             done = self._command(cmd, name)
         except (ModelFileError, InvalidModel, CommandRefused) as exc:
@@ -792,7 +682,7 @@ class VisionVerify:
             return "target model dropped"
         if not name:
             raise CommandRefused(
-                "no_name", f"{cmd.action}: no path in the command and no model_file setting"
+                "no_name", f"{cmd.action}: no path in the command and no files.default_name setting"
             )
         self.files.check_name(name)  # a bad name is named as such, whatever else is wrong
         if cmd.action == "save":
@@ -812,7 +702,7 @@ class VisionVerify:
     def start_acquire(self, *, auto: bool = False) -> None:
         self.builder = ModelBuilder(self.camera_for(*self._image_size()), self.s.acquire)
         self.builder_auto = auto
-        self.acquire_deadline = time.monotonic() + self.s.acquire_timeout_s
+        self.acquire_deadline = time.monotonic() + self.s.acquire.timeout_s
         self.scans.clear()
         self.acq_cands.clear()
         self.acq_images.clear()

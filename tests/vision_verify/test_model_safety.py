@@ -128,7 +128,7 @@ def test_save_and_load_outside_the_models_folder_are_refused_and_the_service_sti
     (folder / "big.model").write_bytes(b"\0" * (MAX_MODEL_BYTES + 1))
     live = LivelinessWatch(zenoh_session, Keys(robot).alive("vision_verify"))
     peer = Peer(zenoh_session, robot)
-    proc = start_vision(spawn, robot, endpoint, f"models_dir={folder}", "model_holder=")
+    proc = start_vision(spawn, robot, endpoint, f"files.folder={folder}", "recovery.holder=")
     try:
         live.expect("PUT", timeout=20)
         peer.command("load", "target.model")
@@ -179,7 +179,7 @@ def test_rogue_models_are_refused_and_verification_goes_on_with_the_model_in_use
     save_model(folder / "target.model", model_message(3))
     live = LivelinessWatch(zenoh_session, Keys(robot).alive("vision_verify"))
     peer = Peer(zenoh_session, robot)
-    proc = start_vision(spawn, robot, endpoint, f"models_dir={folder}", "model_holder=")
+    proc = start_vision(spawn, robot, endpoint, f"files.folder={folder}", "recovery.holder=")
     try:
         live.expect("PUT", timeout=20)
         peer.command("load", "target.model")
@@ -220,7 +220,7 @@ def test_a_late_restarted_worker_recovers_the_model_from_the_tracker_not_relearn
     spawn, endpoint, robot, zenoh_session, tmp_path
 ):
     """vision_verify dies while the robot follows; it comes back well after the tracker
-    (here 2 s after its old liveliness token went) with auto_acquire on. It must take the
+    (here 2 s after its old liveliness token went) with acquire.auto on. It must take the
     model the tracker keeps, under the same id, and must not learn another."""
     keys = Keys(robot)
     folder = tmp_path / "models"
@@ -229,7 +229,7 @@ def test_a_late_restarted_worker_recovers_the_model_from_the_tracker_not_relearn
     live = LivelinessWatch(zenoh_session, keys.alive("vision_verify"))
     peer = Peer(zenoh_session, robot)
     tracker = spawn("run", "tracker", "--robot", robot, "--connect", endpoint)
-    first = start_vision(spawn, robot, endpoint, f"models_dir={folder}")
+    first = start_vision(spawn, robot, endpoint, f"files.folder={folder}")
     try:
         tracker_live.expect("PUT", timeout=20)
         live.expect("PUT", timeout=20)
@@ -250,7 +250,7 @@ def test_a_late_restarted_worker_recovers_the_model_from_the_tracker_not_relearn
         assert served() == [4], tracker.output  # only the tracker is left, and it keeps it
         time.sleep(2.0)
         second = start_vision(
-            spawn, robot, endpoint, f"models_dir={tmp_path / 'empty'}", "auto_acquire=true"
+            spawn, robot, endpoint, f"files.folder={tmp_path / 'empty'}", "acquire.auto=true"
         )
         live.expect("PUT", timeout=20)
         v = peer.verification(second)
@@ -288,7 +288,7 @@ def test_a_worker_without_a_model_keeps_asking_and_takes_a_good_answer_beside_a_
     holders = [zenoh_session.declare_queryable(key, lambda q: q.reply(key, encode(rogue)))]
     live = LivelinessWatch(zenoh_session, keys.alive("vision_verify"))
     peer = Peer(zenoh_session, robot)
-    proc = start_vision(spawn, robot, endpoint, f"models_dir={tmp_path}", "model_holder=")
+    proc = start_vision(spawn, robot, endpoint, f"files.folder={tmp_path}", "recovery.holder=")
     try:
         live.expect("PUT", timeout=20)
         h = peer.health_until(proc, lambda h: h.rejected.get("perception/target_model", 0) >= 2)

@@ -40,8 +40,8 @@ def _models_home(tmp_path, monkeypatch):
 class Rig:
     def __init__(self, net: FakeNetwork | None = None, **kw) -> None:
         self.net = net or FakeNetwork()
-        kw.setdefault("query_timeout_s", 0.05)
-        kw.setdefault("model_holder", "")
+        # quick queries, and no model holder to wait for, unless a test names one
+        kw["recovery"] = {"query_timeout_s": 0.05, "holder": "", **kw.get("recovery", {})}
         self.settings = load_settings(VisionVerifySettings, base=kw)
         self.node = Node("vision_verify", self.settings, self.net.bus())
         self.svc = setup(self.node, self.settings)
@@ -87,7 +87,7 @@ def load_command(model_file) -> TargetCommand:
 
 
 def loaded(path, **kw) -> Rig:
-    kw.setdefault("models_dir", str(path.parent))
+    kw["files"] = {"folder": str(path.parent), **kw.get("files", {})}
     rig = Rig(**kw)
     rig.put("perception/target_command", load_command(path))
     assert rig.svc.model is not None
@@ -170,7 +170,7 @@ def test_stale_scans_are_dropped_not_queued(model_file):
 
 
 def test_lock_step_answers_every_scan_even_without_model_or_image(model_file):
-    rig = Rig(answer_every_scan=True, image_wait_s=0.01, models_dir=str(model_file.parent))
+    rig = Rig(answer_every_scan=True, image_wait_s=0.01, files={"folder": str(model_file.parent)})
     for k in range(3):
         rig.put("perception/candidates", PersonCandidates(stamp_ns=k + 1))
     assert [(v.stamp_ns, v.chosen, v.candidates) for v in rig.verifications()] == [
@@ -257,21 +257,25 @@ def test_a_reset_stops_the_asking(model_file):
     assert rig.svc.model is None
 
 
-def test_auto_acquire_gives_way_to_the_model_a_holder_keeps(model_file):
-    """A restarted worker with auto_acquire: the tracker holds model 3; the worker recovers it
+def test_acquire_auto_gives_way_to_the_model_a_holder_keeps(model_file):
+    """A restarted worker with acquire.auto: the tracker holds model 3; the worker recovers it
     before it says it is alive, and does not learn another."""
     net = FakeNetwork()
     Holder(net, _the_model(model_file))
-    rig = Rig(net=net, auto_acquire=True, model_holder="tracker", recover_wait_s=30.0)
+    rig = Rig(
+        net=net, acquire={"auto": True}, recovery={"holder": "tracker", "holder_wait_s": 30.0}
+    )
     assert rig.svc.model.model_id == 3 and rig.svc.model_id == 3
     assert rig.svc.builder is None  # auto-acquisition stopped: there is a model
     assert rig.node.health().status == "ok"
 
 
-def test_auto_acquire_learns_when_the_holder_is_alive_and_holds_nothing():
+def test_acquire_auto_learns_when_the_holder_is_alive_and_holds_nothing():
     net = FakeNetwork()
     Holder(net, None)
-    rig = Rig(net=net, auto_acquire=True, model_holder="tracker", recover_wait_s=30.0)
+    rig = Rig(
+        net=net, acquire={"auto": True}, recovery={"holder": "tracker", "holder_wait_s": 30.0}
+    )
     assert rig.svc.nobody_holds and rig.svc.builder is not None  # at once, not after 30 s
     rig.svc._acquired(_acquisition())
     assert rig.svc.model is not None and rig.svc.model.model_id == 1
@@ -280,13 +284,13 @@ def test_auto_acquire_learns_when_the_holder_is_alive_and_holds_nothing():
 
 
 def test_a_model_learnt_before_anyone_answered_waits_and_loses_to_a_recovered_one(model_file):
-    """With no holder seen, nobody-holds-one is not concluded before recover_wait_s: a model
+    """With no holder seen, nobody-holds-one is not concluded before recovery.holder_wait_s: a model
     learnt meanwhile is held back; a model the network then gives is used instead."""
     import time
 
     net = FakeNetwork()
     t0 = time.monotonic()
-    rig = Rig(net=net, auto_acquire=True, model_holder="tracker", recover_wait_s=0.3)
+    rig = Rig(net=net, acquire={"auto": True}, recovery={"holder": "tracker", "holder_wait_s": 0.3})
     assert time.monotonic() - t0 >= 0.3  # setup asked until the wait was over
     assert rig.svc.nobody_holds  # no holder appeared: nobody holds one
     # the same, with the conclusion still open when the model is learnt
@@ -299,7 +303,7 @@ def test_a_model_learnt_before_anyone_answered_waits_and_loses_to_a_recovered_on
     assert rig.svc.model.model_id == 3 and rig.svc.held_build is None
     assert rig.svc.counts["acquired_dropped"] == 1
     # ... and had nobody answered, the held model would have gone in
-    other = Rig(net=FakeNetwork(), auto_acquire=True, recover_wait_s=0.01)
+    other = Rig(net=FakeNetwork(), acquire={"auto": True}, recovery={"holder_wait_s": 0.01})
     other.svc.nobody_holds = False
     other.svc._acquired(_acquisition())
     assert other.svc.model is None
@@ -353,26 +357,26 @@ def test_save_command_writes_a_loadable_file_in_the_models_folder(model_file, tm
     rig.put("perception/target_command", TargetCommand(stamp_ns=7, action="save", path="saved"))
     assert (tmp_path / "models" / "saved").is_file()
     assert rig.node.notes[-1].startswith("command save 7 done: model 4 saved to ")
-    other = Rig(models_dir=str(tmp_path / "models"))
+    other = Rig(files={"folder": str(tmp_path / "models")})
     other.put("perception/target_command", TargetCommand(stamp_ns=0, action="load", path="saved"))
     assert other.svc.model.model_id == 5
-    # no name: the model_file setting's, in the same folder
+    # no name: the files.default_name setting's, in the same folder
     rig.put("perception/target_command", TargetCommand(stamp_ns=0, action="save"))
     assert (tmp_path / "models" / "target.model").is_file()
 
 
 def test_a_save_or_load_that_cannot_be_done_is_refused_counted_and_reported(model_file, tmp_path):
-    rig = loaded(model_file, model_file="")
-    # no name and no model_file setting; a file that is not there: refused, not a failure
+    rig = loaded(model_file, files={"default_name": ""})
+    # no name and no files.default_name setting; a file that is not there: refused, not a failure
     rig.put("perception/target_command", TargetCommand(stamp_ns=1, action="save"))
     assert rig.node.notes[-1] == (
-        "command save 1 refused: save: no path in the command and no model_file setting"
+        "command save 1 refused: save: no path in the command and no files.default_name setting"
     )
     rig.put("perception/target_command", TargetCommand(stamp_ns=2, action="load", path="gone"))
     assert rig.node.notes[-1].startswith("command load 2 refused: no model file 'gone' in ")
     assert rig.node.errors == 0 and rig.svc.model.model_id == 4
     assert rig.node.health().rejected["perception/target_command"] == 2
-    empty = Rig(models_dir=str(tmp_path))
+    empty = Rig(files={"folder": str(tmp_path)})
     empty.put("perception/target_command", TargetCommand(stamp_ns=3, action="save", path="x"))
     assert empty.node.notes[-1] == "command save 3 refused: save: there is no target model"
     assert not (tmp_path / "x").exists()
