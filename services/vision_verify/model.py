@@ -150,7 +150,9 @@ def moving_candidates(
 ) -> list[int]:
     """Indices of the candidates with a leg holding >= ``min_beams`` beams, and at least
     ``min_fraction`` of its beams, whose range changed by more than ``threshold_m`` (thesis
-    4.2.2); beams without a return in either scan do not count.
+    4.2.2); beams without a return (NaN, 0) in either scan do not count. A beam that saw
+    nothing within range (+inf, REP-117) in one scan and a leg in the other did change: a
+    leg that steps in front of open space beyond the scanner's reach is a leg that moved.
 
     The fraction is beyond the thesis: its 30 mm is twice the scanner's +-15 mm accuracy, but
     with Gaussian noise of 15 mm (the simulator's) the difference of two readings exceeds 30 mm
@@ -175,7 +177,8 @@ def moving_legs(
     if ref.shape != cur.shape:
         return {}
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(ref) & np.isfinite(cur) & (ref > 0) & (cur > 0)
+        # +inf is a reading (nothing within range); inf - inf is NaN, which is no change
+        valid = ~np.isnan(ref) & ~np.isnan(cur) & (ref > 0) & (cur > 0)
         changed = valid & (np.abs(cur - ref) > threshold_m)
     counts = np.concatenate([[0], np.cumsum(changed)])
     out: dict[int, list[int]] = {}

@@ -90,6 +90,20 @@ def test_laser_difference_marks_the_candidate_whose_legs_moved():
     assert moving_candidates(ref, cur[:50], cands) == []  # scans of different lengths
 
 
+def test_a_leg_stepping_in_front_of_open_space_beyond_range_moved():
+    """Behind the leg the scanner sees nothing within its range (+inf): a leg there now, and
+    open space where it stood, are changed beams; beams that read nothing in both scans, or no
+    return (NaN) in one, are not."""
+    ref = np.full(100, np.inf)
+    cur = ref.copy()
+    ref[40:44] = 2.0  # the leg, reference scan
+    cur[44:48] = 2.0  # the leg, a step to the side, beyond range behind it in the other scan
+    cands = _cands([(44, 47)])
+    assert moving_candidates(ref, cur, cands, 0.03, 2) == [0]
+    cur[44:48] = np.nan  # no return where the leg was seen: not a change
+    assert moving_candidates(ref, cur, cands, 0.03, 2) == []
+
+
 def test_a_person_covered_by_the_mover_is_not_a_mover():
     """The mover (beams 20..28) steps in front of a standing person (beams 40..48): in the
     current scan it covers beams 40..43, whose ranges drop. Only the mover changed in both
