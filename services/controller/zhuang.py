@@ -10,8 +10,8 @@ keep a distance band measured through the floor.
   centre, and the rule turns the robot, so it is the column (x), as implemented and tested.
 - Distance (from the floor point under the person, equations 15-16): beyond ``max_distance_m``
   move forward, inside ``safe_distance_m`` back off, between them stand. The seed gives no
-  distances or speeds; the defaults are followbot's following band (DESIGN.md: 1.0-2.0 m) and
-  the thesis's 0.75 m/s top speed.
+  distances or speeds; the defaults keep the feet in view of a low level camera (below) and
+  use the thesis's 0.75 m/s top speed.
 
 The rule returns a wish; followbot's controller applies its limits and watchdog to it.
 """
@@ -34,8 +34,10 @@ class ZhuangSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Turn rate per pixel off centre at 192 px wide, rad/s/px (scaled by 192 / width)."""
     dead_band_px: tuple[float, float] = _SEED_BAND_PX
     """Columns of a 192 px wide image inside which the robot does not turn (seed 5.1)."""
-    safe_distance_m: Annotated[float, msgspec.Meta(gt=0)] = 1.0
-    max_distance_m: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    # the seed gives no distances: a band a level camera 0.4 m high (a Pioneer 3's top plate)
+    # can measure, its floor visible from 1.2 m on
+    safe_distance_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
+    max_distance_m: Annotated[float, msgspec.Meta(gt=0)] = 2.5
     forward_mps: Annotated[float, msgspec.Meta(gt=0, le=2)] = 0.75
     back_mps: Annotated[float, msgspec.Meta(gt=0, le=2)] = 0.2
 

@@ -36,7 +36,7 @@ def test_the_turn_is_proportional_to_the_offset_from_the_centre():
 def test_forward_beyond_the_maximum_distance_back_inside_the_safe_one():
     rule = ZhuangRule()
     assert rule.command(160, 320, 3.0)[0] > 0
-    assert rule.command(160, 320, 1.5)[0] == 0
+    assert rule.command(160, 320, 2.0)[0] == 0
     assert rule.command(160, 320, 0.6)[0] < 0
     assert rule.command(160, 320, math.nan)[0] == 0  # no floor point: turn only
 
