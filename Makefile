@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(BIN)/python -m followbot.services.controller.bench
 	$(BIN)/python -m followbot.services.vision_verify.bench
 	$(BIN)/python -m followbot.services.sim.bench
+	$(BIN)/python -m followbot.services.camera_blobs.bench
 
 demo: $(STAMP)
 	$(BIN)/followbot demo $(ARGS)
