@@ -69,6 +69,7 @@ opencv-data:
 schemas: $(STAMP)
 	$(BIN)/followbot schemas --output schemas/contract
 	$(BIN)/followbot schemas --markdown docs/messages.md
+	$(BIN)/followbot settings --markdown docs/settings.md
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis build *.egg-info

@@ -33,6 +33,7 @@ lines, its restamped scans).
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 from collections import Counter
@@ -755,3 +756,116 @@ def _compressed_image(ros, t_ns: int) -> Image:
         img.encoding = "jpeg"
         img.data = memoryview(data.tobytes())
     return img
+
+
+# --------------------------------------------------------------------------- the laser's mount
+
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+#: Roll or pitch beyond this (radians, ~2 deg) is not a level 2-D laser: warned about.
+TILT_WARN_RAD = math.radians(2.0)
+#: /tf messages read at most, looking for a transform /tf_static lacks.
+TF_SCAN_LIMIT = 5000
+
+
+@dataclass
+class MountFound:
+    """The laser's pose in the base frame as a recording gives it, and where it came from."""
+
+    mount: object  # LaserMount
+    source: str
+    warnings: list[str] = field(default_factory=list)
+
+
+def _planar(tr) -> tuple[tuple[float, float, float], float, float]:
+    """((x, y, yaw), roll, pitch) of a ROS geometry_msgs/Transform."""
+    t, q = tr.translation, tr.rotation
+    yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    roll = math.atan2(2 * (q.w * q.x + q.y * q.z), 1 - 2 * (q.x * q.x + q.y * q.y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (q.w * q.y - q.z * q.x))))
+    return (float(t.x), float(t.y), yaw), roll, pitch
+
+
+def _compose(a, b):
+    """SE(2) ``a`` then ``b`` (b expressed in a's frame)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
+
+
+def _inverse(a):
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (-(c * a[0] + s * a[1]), s * a[0] - c * a[1], -a[2])
+
+
+def chain_transforms(edges: dict, base: str, laser: str):
+    """The pose of frame ``laser`` in frame ``base`` through ``edges`` ({(parent, child):
+    (x, y, yaw) of the child in the parent}), walking each edge either way; (pose, the frames
+    passed) or None when no chain joins them."""
+    links: dict[str, list] = {}
+    for (parent, child), pose in edges.items():
+        links.setdefault(parent, []).append((child, pose))
+        links.setdefault(child, []).append((parent, _inverse(pose)))
+    seen = {base: ((0.0, 0.0, 0.0), [base])}
+    todo = [base]
+    while todo:
+        frame = todo.pop(0)
+        pose, path = seen[frame]
+        if frame == laser:
+            return pose, path
+        for nxt, step in links.get(frame, []):
+            if nxt not in seen:
+                seen[nxt] = (_compose(pose, step), [*path, nxt])
+                todo.append(nxt)
+    return None
+
+
+def mount_from_tf(path: Path, base_frame: str, laser_frame: str) -> MountFound | None:
+    """The laser's mount from a ROS bag's /tf_static (and /tf, when the static transforms do
+    not join the two frames): the chain ``base_frame`` -> ... -> ``laser_frame`` in 2-D (x, y,
+    yaw; z ignored, roll and pitch warned about when not ~0). None when the bag has no tf or
+    no chain joins the frames."""
+    from followbot.services.runtime.mount import LaserMount
+
+    try:
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([path]) as reader:
+            conns = [c for c in reader.connections if c.msgtype == TF_TYPE]
+            if not conns:
+                return None
+            static = [c for c in conns if c.topic.endswith("tf_static")]
+            dynamic = [c for c in conns if c not in static]
+            edges: dict = {}
+            tilt: dict = {}
+            used: list[str] = []
+            for group in (static, dynamic):
+                if not group:
+                    continue
+                for n, (conn, _t, raw) in enumerate(reader.messages(connections=group)):
+                    if n >= TF_SCAN_LIMIT:
+                        break
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    for ts in msg.transforms:
+                        key = (ts.header.frame_id.lstrip("/"), ts.child_frame_id.lstrip("/"))
+                        if key not in edges:  # the first: a mount does not move
+                            edges[key], roll, pitch = _planar(ts.transform)
+                            tilt[key] = (roll, pitch)
+                used.append(group[0].topic)
+                found = chain_transforms(edges, base_frame, laser_frame)
+                if found is not None:
+                    break
+    except Exception as exc:  # rosbags raises its own error types per format
+        raise RecordingError(f"{path}: cannot read its tf: {exc}") from None
+    if found is None:
+        return None
+    (x, y, yaw), frames = found
+    warnings = []
+    for a, b in itertools.pairwise(frames):
+        roll, pitch = tilt.get((a, b)) or tilt.get((b, a)) or (0.0, 0.0)
+        if abs(math.remainder(roll, math.tau)) > TILT_WARN_RAD or abs(pitch) > TILT_WARN_RAD:
+            warnings.append(
+                f"tf {a} -> {b} is tilted (roll {math.degrees(roll):.1f} deg, pitch "
+                f"{math.degrees(pitch):.1f} deg): followbot reads the laser in 2-D and ignores "
+                "the tilt (an upside-down laser mirrors its scans)"
+            )
+    mount = LaserMount(x_m=x, y_m=y, yaw_deg=math.degrees(math.remainder(yaw, math.tau)))
+    return MountFound(mount, f"{' + '.join(used)}: {' -> '.join(frames)}", warnings)

@@ -394,6 +394,30 @@ class CarmenLog:
     def source_type(self, source: str) -> str:
         return self.contents[source][0]
 
+    def laser_mount(self, source: str) -> tuple[float, float, float] | None:
+        """The laser's (x_m, y_m, yaw_rad) on the robot as ``source``'s records give it: a
+        ROBOTLASER record carries the laser's pose and the robot's in one frame, so the laser's
+        pose in the robot's frame is robot^-1 * laser (the first readable record's; the mount
+        does not move). None for other records: FLASER's laser pose and odometry are in
+        different frames in corrected logs."""
+        if source not in _ROBOT_TYPE:
+            return None
+        for _line_no, tokens in self._lines():
+            if tokens[0] != source:
+                continue
+            try:
+                rec = parse_line(tokens)
+            except Malformed:
+                continue
+            if rec.laser_pose is None or rec.odom is None:
+                continue
+            lx, ly, lyaw = rec.laser_pose
+            rx, ry, ryaw = rec.odom[:3]
+            c, s = math.cos(ryaw), math.sin(ryaw)
+            dx, dy = lx - rx, ly - ry
+            return c * dx + s * dy, -s * dx + c * dy, math.remainder(lyaw - ryaw, 2 * math.pi)
+        return None
+
     # ------------------------------------------------------------------ first pass
 
     def _lines(self) -> Iterator[tuple[int, list[str]]]:

@@ -6,9 +6,12 @@ followbot services                                              list runnable se
 followbot status [--robot R] [--watch]                          live services and their health
 followbot topics                                                list topics and types
 followbot schemas [--output DIR | --check]                      JSON Schema of messages
+followbot settings [--markdown FILE | --check FILE]             settings reference
 followbot demo                                                  live pipeline smoke
 followbot bench [--json FILE]                                   benchmarks
 followbot appearance VIDEO BOXES [--lags 25,100] ...            a verifier on boxed footage
+followbot benchmark [DATA_DIR] --output DIR [--all-presets]     the real-data suite
+followbot realstats [--data DIR] [--sim] [--json FILE]          real vs simulated laser figures
 """
 
 from __future__ import annotations
@@ -108,7 +111,7 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "status": ("followbot.status", "main", "every live service of a robot: health, host, pid"),
     "target": ("followbot.target", "main", "acquire / reset / save / load the target model"),
     "eval": ("followbot.eval_cli", "main", "scenarios x presets through the pipeline: report"),
-    "sweep": ("followbot.sweep", "main", "every scenario over several seeds: the issues' figures"),
+    "sweep": ("followbot.sweep", "main", "every scenario over several seeds: closed-loop figures"),
     "track": ("followbot.track", "main", "run the pipeline over a recording; tracks to CSV"),
     "appearance": (
         "followbot.appearance",
@@ -118,7 +121,18 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
     "record": ("followbot.recording", "record_main", "record topics to MCAP"),
     "replay": ("followbot.recording", "replay_main", "replay an MCAP file or a ROS 1/2 bag"),
     "bench": ("followbot.bench", "main", "run the benchmarks"),
+    "realstats": (
+        "followbot.realstats",
+        "main",
+        "laser statistics of the real recordings, and of the simulator side by side",
+    ),
     "certs": ("followbot.certs", "main", "a CA and per-service certificates for secure Zenoh"),
+    "benchmark": ("followbot.benchmark", "main", "the real-data suite: detectors, logs, footage"),
+    "settings": (
+        "followbot.settingsdoc",
+        "main",
+        "every service's and plugin's settings: key, type, default, meaning",
+    ),
 }
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import yaml
 
 from followbot import progress as progress_line
@@ -154,6 +155,16 @@ def stage_settings(
     return out
 
 
+def sensor_mounts(spec) -> dict[str, Any]:
+    """The settings every service of a run of scenario ``spec`` shares about where its sensors
+    sit: ``laser_mount``, the scenario's laser (the sim checks it against its own). Empty for a
+    laser at the base's origin, the default."""
+    mount = spec.laser.mount()
+    if mount.is_identity:
+        return {}
+    return {"laser_mount": msgspec.to_builtins(mount)}
+
+
 def apply_stage_overrides(settings: dict[str, dict[str, Any]], overrides: list[str]) -> None:
     """``STAGE.key=value`` items (value in YAML) into each stage's settings; a bad item raises
     :class:`RunError` naming it. Each stage validates its keys when it starts."""
@@ -218,8 +229,18 @@ def run_scenario(
         "start_timeout_s": 60.0,
         **({"seed": seed} if seed is not None else {}),
     }
+    cam = spec.camera
+    if vision and (cam.mount_x_m, cam.mount_y_m, cam.mount_yaw_deg) != (0.0, 0.0, 0.0):
+        # the camera's own mount, in the base frame as vision_verify's cameras take it
+        mount = {"offset_x_m": cam.mount_x_m, "offset_y_m": cam.mount_y_m}
+        settings["vision_verify"]["cameras"] = {"default": {**mount, "yaw_deg": cam.mount_yaw_deg}}
     apply_stage_overrides(settings, overrides or [])
-    common = {"robot": robot, "zenoh": {"connect": [endpoint]}, "log_level": "warning"}
+    common = {
+        "robot": robot,
+        "zenoh": {"connect": [endpoint]},
+        "log_level": "warning",
+        **sensor_mounts(spec),
+    }
     stamps: dict[int, _Stamp] = {}
     truth_ns = [0]  # newest truth stamp; the handlers (Zenoh threads) write, the loop reads
     writer = McapTopicWriter(out_dir / "run.mcap", robot) if record else None

@@ -6,8 +6,8 @@
 One seed says little in closed loop (a different pairing now and then sends the robot down
 a slightly different path), so a change is judged on a grid of runs: every built-in scenario
 with its own seed and seeds 1, 2, 3, and the eight with occlusions or crowds (``HARD``)
-also with seeds 4 and 6 -- 76 runs in all (``--grid standard``). ``--grid own``
-runs each scenario once with its own seed (15 runs); ``--seeds`` and ``--scenario`` choose
+also with seeds 4 and 6 -- 84 runs in all (``--grid standard``). ``--grid own``
+runs each scenario once with its own seed (17 runs); ``--seeds`` and ``--scenario`` choose
 any other grid.
 
 Each run goes through the real pipeline exactly as ``followbot eval`` runs it (lock-step, so
@@ -270,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--output", required=True, metavar="DIR", help="sweep folder")
     p.add_argument(
         "--grid", choices=("standard", "own"), default="standard",
-        help="standard: own seed and 1-3 for all, 4 and 6 for the hard ones (76 runs); "
+        help="standard: own seed and 1-3 for all, 4 and 6 for the hard ones (84 runs); "
         "own: each scenario with its own seed",
     )  # fmt: skip
     p.add_argument(

@@ -9,9 +9,16 @@ Runs the real pipeline (laser_legs and tracker, plus vision_verify when images a
 processes over Zenoh, in lock-step with the recording: each scan is published only once the
 stages have answered the previous one, so the run is deterministic and as fast as the stages
 allow. Writes ``DIR/tracks.mcap`` (tracking/target and tracking/people as published) and
-``DIR/people.csv`` / ``DIR/target.csv`` with columns ``stamp_ns,id,x_m,y_m,vx_mps,vy_mps`` in
-the laser frame of each scan (target.csv: scans where the target is tracked or coasting).
-Without a camera the target is the nearest person ahead (tracker ``acquire: nearest``).
+``DIR/people.csv`` / ``DIR/target.csv`` with columns ``stamp_ns,id,x_m,y_m,vx_mps,vy_mps,frame``
+in the base frame of each scan (``frame`` names it; target.csv: scans where the target is
+tracked or coasting). Without a camera the target is the nearest person ahead (tracker
+``acquire: nearest``).
+
+Where the laser sits on the robot (the stages' ``laser_mount``), first found wins:
+``--laser-pose x,y,yaw_deg``; a ROS bag's /tf_static (then /tf), the chain from
+``--base-frame`` to ``--laser-frame`` (default: the scans' frame_id) in 2-D; a CARMEN log's
+ROBOTLASER records (the laser's pose against the robot's); else the laser is taken to sit at
+the base's origin, facing ahead. The mount used and where it came from are printed.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from __future__ import annotations
 import argparse
 import csv
 import heapq
+import math
 import os
 import sys
 import time
@@ -53,6 +61,20 @@ def main(argv: list[str] | None = None) -> int:
         help="odometry (ego-motion compensation); with --scan-topic, none unless given",
     )
     p.add_argument("--image-topic", help="camera images (vision verification)")
+    p.add_argument(
+        "--laser-pose", metavar="X,Y,YAW_DEG",
+        help="where the laser sits on the robot: metres ahead of and left of the base's "
+        "origin, and degrees turned counter-clockwise, e.g. 0.88,0,42 (overrides the "
+        "recording's tf)",
+    )  # fmt: skip
+    p.add_argument(
+        "--base-frame", default="base_link",
+        help="the robot's base frame in the recording's tf (base_link)",
+    )  # fmt: skip
+    p.add_argument(
+        "--laser-frame", help="the laser's frame in the recording's tf (default: the scans' "
+        "frame_id)",
+    )  # fmt: skip
     p.add_argument("--output", required=True, metavar="DIR", help="output folder")
     p.add_argument("--preset", default="thesis", choices=sorted(PRESETS), help="(thesis)")
     p.add_argument(
@@ -90,6 +112,15 @@ def main(argv: list[str] | None = None) -> int:
     if isinstance(settings, str):
         print(f"followbot track: {settings}", file=sys.stderr)
         return 2
+    pose = None
+    if args.laser_pose is not None:
+        from followbot.services.runtime.mount import parse_laser_pose
+
+        try:
+            pose = parse_laser_pose(args.laser_pose)
+        except ValueError as exc:
+            print(f"followbot track: --laser-pose: {exc}", file=sys.stderr)
+            return 2
     # Each stage checks its settings the way it will when started, all at once, before the
     # recording is read: a wrong key or value is an error in about a second.
     from followbot.runner import invalid_stage_settings
@@ -114,10 +145,56 @@ def main(argv: list[str] | None = None) -> int:
     for warning in rec.warnings:
         print(f"warning: {rec.path}: {warning}", file=sys.stderr)
     try:
+        mount, source = laser_mount_of(rec, pose, args.base_frame, args.laser_frame)
+    except RecordingError as exc:
+        print(f"followbot track: {exc}", file=sys.stderr)
+        return 2
+    print(f"laser mount: {mount.describe()} ({source})", file=sys.stderr)
+    if not mount.is_identity:
+        import msgspec
+
+        for stage in settings.values():
+            stage["laser_mount"] = msgspec.to_builtins(mount)
+    try:
         return _track(rec, stages, settings, Path(args.output), args.max_scans, args.timeout)
     except RecordingError as exc:
         print(f"followbot track: {exc}", file=sys.stderr)
         return 1
+
+
+def laser_mount_of(rec, given, base_frame: str, laser_frame: str | None):
+    """(LaserMount, where it came from): ``given`` (--laser-pose), else the recording's tf or
+    CARMEN ROBOTLASER records, else the base's origin (module doc)."""
+    from followbot.bags import mount_from_tf
+    from followbot.services.runtime.mount import LaserMount
+
+    if given is not None:
+        return given, "--laser-pose"
+    scan_src = next((s for s, d in rec.mapping.items() if d == "sensors/scan"), None)
+    if rec.kind == "ros" and rec.indexed:
+        frame = laser_frame or _scan_frame(rec)
+        found = mount_from_tf(rec.path, base_frame, frame) if frame else None
+        if found is not None:
+            for warning in found.warnings:
+                print(f"warning: {rec.path}: {warning}", file=sys.stderr)
+            return found.mount, f"tf {found.source}"
+        why = f"no tf joins {base_frame} and {frame or 'the scans frame'}"
+        return LaserMount(), f"{why}: taken at the base's origin; give --laser-pose"
+    if rec.kind == "carmen" and scan_src is not None:
+        pose = rec.carmen.laser_mount(scan_src)
+        if pose is not None:
+            x, y, yaw = pose
+            mount = LaserMount(x_m=x, y_m=y, yaw_deg=math.degrees(yaw))
+            return mount, f"{scan_src} records: the laser's pose against the robot's"
+    return LaserMount(), "none in the recording: taken at the base's origin; give --laser-pose"
+
+
+def _scan_frame(rec) -> str | None:
+    """The frame_id of the recording's first scan."""
+    for _t, topic, message in rec.messages():
+        if topic == "sensors/scan":
+            return message.frame_id.lstrip("/") or None
+    return None
 
 
 def _open_with_defaults(path: str, remaps: dict[str, str]):
@@ -192,12 +269,14 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
         writer.write("tracking/people", payload, m.stamp_ns, time.time_ns())
         most_at_once[0] = max(most_at_once[0], len(m.tracks))
         for t in m.tracks:
-            people_rows.append([m.stamp_ns, t.id, t.x_m, t.y_m, t.vx_mps, t.vy_mps])
+            people_rows.append([m.stamp_ns, t.id, t.x_m, t.y_m, t.vx_mps, t.vy_mps, m.frame_id])
 
     def on_target(m, payload: bytes) -> None:
         writer.write("tracking/target", payload, m.stamp_ns, time.time_ns())
         if m.status in ("tracking", "coasting"):
-            target_rows.append([m.stamp_ns, m.track_id, m.x_m, m.y_m, m.vx_mps, m.vy_mps])
+            target_rows.append(
+                [m.stamp_ns, m.track_id, m.x_m, m.y_m, m.vx_mps, m.vy_mps, m.frame_id]
+            )
 
     node.subscribe("tracking/people", on_people, with_payload=True)
     node.subscribe("tracking/target", on_target, with_payload=True)
@@ -219,6 +298,7 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
                 raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
         time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
         last_shown = 0.0
+        silent = 0  # scans in a row a stage left unanswered
         messages = sensor_order(rec.messages())
         if "sensors/odom" in pubs:
             messages = odometry_ahead(messages)
@@ -227,7 +307,12 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
             if topic != "sensors/scan":
                 continue
             scans += 1
-            barrier.wait(message.stamp_ns, timeout_s)
+            late = barrier.wait(message.stamp_ns, timeout_s)
+            silent = silent + 1 if late else 0
+            if silent >= GIVE_UP_SCANS:
+                log = ", ".join(str(out / f"{s}.log") for s in late)
+                why = f"{', '.join(late)} answered none of the last {silent} scans (see {log})"
+                raise SystemExit(_fail(why, procs, late))
             now = time.monotonic()
             if now - last_shown > 0.5 or scans == total:
                 last_shown = now
@@ -245,12 +330,12 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
         session.close()
         writer.close()
     progress.finish()
-    header = ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps"]
+    header = ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps", "frame"]
     for name, rows in (("people.csv", people_rows), ("target.csv", target_rows)):
         with (out / name).open("w", newline="") as f:
             w = csv.writer(f)
             w.writerow(header)
-            w.writerows([r[:2] + [f"{v:.4f}" for v in r[2:]] for r in rows])
+            w.writerows([r[:2] + [f"{v:.4f}" for v in r[2:6]] + r[6:] for r in rows])
     ids = {r[1] for r in people_rows}
     wall = time.monotonic() - t0
     # A track id is not a person: one person lost and found again gets a new id, so the ids
@@ -322,6 +407,10 @@ def odometry_ahead(messages, horizon_ns: int = 1_000_000_000):
         while pending and due(message.stamp_ns):
             yield pending.popleft()
     yield from pending
+
+
+#: A stage that answers none of this many scans in a row is failing on each: stop the run.
+GIVE_UP_SCANS = 3
 
 
 def _fail(why: str, procs, stages) -> int:

@@ -369,7 +369,8 @@ class TargetModel(Message, tag="target_model", kw_only=True):
     verifier: Name
     x_m: Finite
     y_m: Finite
-    """Laser position of the target when the model was built (x_model, y_model)."""
+    """Where the target was when the model was built (x_model, y_model), base frame of that
+    scan."""
     rect_width_px: Annotated[float, msgspec.Meta(gt=0, le=MAX_IMAGE_SIDE)]
     rect_height_px: Annotated[float, msgspec.Meta(gt=0, le=MAX_IMAGE_SIDE)]
     image_width: Annotated[int, msgspec.Meta(ge=1, le=MAX_IMAGE_SIDE)]
@@ -401,9 +402,14 @@ class VerifiedCandidate(msgspec.Struct, kw_only=True):
     """Index in the PersonCandidates message of the judged scan."""
     x_m: Finite
     y_m: Finite
+    """The candidate's position in the base frame of the judged scan."""
     in_view: bool
     distance: NonNegative | None = None
     """Appearance distance to the model (smaller is more alike); None when not in view."""
+    probability: _Probability | None = None
+    """Calibrated probability that this candidate is the target, from a verifier that gives
+    one (``online``: distance = 1 - probability, so its threshold 0.5 means "less likely than
+    not"); None from the others, or when not in view."""
 
 
 class Verification(Message, tag="verification", kw_only=True):

@@ -478,7 +478,8 @@ def test_track_runs_on_a_real_carmen_log_with_its_default_sources(tmp_path):
     assert len(answers) == 100
     with (tmp_path / "people.csv").open() as f:
         rows = list(csv.reader(f))
-    assert rows[0] == ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps"]
+    assert rows[0] == ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps", "frame"]
+    assert "laser mount: x 0.000 m, y 0.000 m, yaw 0.0 deg (none in the recording" in out.stderr
     # answers to the log's scans, on the log's clock
     scan_stamps = {m.stamp_ns for _, t, m in open_recording(path).messages()
                    if t == "sensors/scan"}  # fmt: skip

@@ -640,8 +640,8 @@ def test_plot_run_with_gaps_switches_and_no_latency(tmp_path):
 def _simulated_run(n_scans: int) -> ScenarioRun:
     """The simulator core with a truth-fed fake pipeline: the tracker reports the target 5 cm
     ahead of truth, every visible person as a track, each as a two-leg candidate."""
+    from followbot.research.render_docs import truth_follower
     from followbot.schemas import GroundTruth as GT
-    from followbot.services.sim.render_docs import truth_follower
     from followbot.services.sim.scenario import load_builtin
     from followbot.services.sim.simulation import Simulation
 

@@ -1,4 +1,4 @@
-"""followbot.geometry: the angle wrap the simulator, laser_legs and the tracker share."""
+"""services/common/geometry: the angle wrap the simulator, laser_legs and the tracker share."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from followbot.geometry import wrap_angle
+from followbot.services.common.geometry import wrap_angle
 
 angles = st.floats(min_value=-1e4, max_value=1e4, allow_nan=False)
 

@@ -22,11 +22,11 @@ def metric(scenario, rmse=0.05, tracked=1.0, wrong=0.0, switches=0, episodes=(),
     }
 
 
-def test_the_standard_grid_is_the_76_runs_of_the_docs():
+def test_the_standard_grid_is_the_84_runs_of_the_docs():
     from followbot.eval_cli import builtin_scenarios
 
     runs = grid("standard", builtin_scenarios())
-    assert len(runs) == 76 and len(set(runs)) == 76
+    assert len(runs) == 84 and len(set(runs)) == 84
     assert {seed for s, seed in runs if s not in HARD} == {None, 1, 2, 3}
     assert {seed for s, seed in runs if s in HARD} == {None, 1, 2, 3, 4, 6}
     assert grid("own", ["crowd_ten"]) == [("crowd_ten", None)]

@@ -46,7 +46,8 @@ def test_a_ros1_bag_is_tracked_end_to_end_and_deterministically(tmp_path):
     assert b.returncode == 0, b.stderr
     assert "tracked 250 scans" in a.stdout
     people, target = rows(tmp_path / "a" / "people.csv"), rows(tmp_path / "a" / "target.csv")
-    assert people[0] == ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps"]
+    assert people[0] == ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps", "frame"]
+    assert {r[6] for r in people[1:]} == {"base_link"}
     assert len(people) > 100 and len(target) > 20  # people walk round the still robot
     stamps = [int(r[0]) for r in target[1:]]
     assert stamps == sorted(stamps)

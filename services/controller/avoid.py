@@ -18,7 +18,7 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
   own arc's gain nearer it; when that arc gains nothing, no worse), the one whose turn rate
   is nearest the command's (reason ``avoid_turn``). A way round that leads away is no way:
   a robot 1.2 m from someone walking round a pillar would drive off past the pillar's other
-  side and lose them (occlusion_pillar).
+  side and lose them.
 * None: the command's own arc at the speed that stops within its free length (the same
   curvature, so the same arc; reason ``avoid_slow``); under ``min_speed_mps`` the base stops
   and only turns as the rule says, on the spot (reason ``avoid_stop``; a disc turning on
@@ -26,54 +26,56 @@ an obstacle except those within ``ignore_near_target_m`` of the target's estimat
 * Stopped so with the target known (``escape_m`` > 0, reason ``avoid_escape``): the base would
   stand there for good when the only way on is sideways first -- at a corridor's mouth with
   the corner 0.3 m ahead-right and the target straight on, every forward arc closes in on the
-  corner (ristic_wall_corridor, seed 1: 5 s standing, then the target gone). So the guard
-  looks for the heading nearest the target's bearing (within 90 deg of it, inside +-90 deg of
-  ahead) along which a straight run of ``escape_m`` keeps the disc clear of everything by
-  ``escape_clear_m`` (the margin may be used here, the body never). Straight ahead is such a
-  heading and no more than ``escape_slack`` further from the target's bearing: the base
-  drives on at the speed that stops within ``escape_m``. Otherwise it turns on the spot
-  towards that heading. The next command starts from the new pose as before: the rule's own
-  arc first, then the turns, and the escape only when those are stopped again. (The
-  controller starts an escape only once the base has stood ``avoid_escape_after_s``.)
-  That is :meth:`ObstacleGuard.apply` alone. The controller's default
-  (``avoid_escape_commit``) plans the escape instead: :meth:`ObstacleGuard.escape_goal` with
-  ``onward`` picks the end point past the corner -- the shortest run (1, 1.5, 2 x
-  ``escape_m``), then the heading nearest the target's, from whose end the straight way on to
-  the target is free for the disc (ONWARD_M, short of the target's legs), the target kept
-  inside the laser's view -- and :meth:`ObstacleGuard.toward_goal` drives there, turning on
-  the spot first, before the rule has the base again. Recomputed each step, the rule's own
-  arc, free again after a few centimetres, turned the base back into the corner.
+  corner. So the guard looks for the heading nearest the target's bearing (within 90 deg of
+  it, inside +-90 deg of ahead) along which a straight run of ``escape_m`` keeps the disc
+  clear of everything by ``escape_clear_m`` (the margin may be used here, the body never).
+  Straight ahead is such a heading and no more than ``escape_slack`` further from the
+  target's bearing: the base drives on at the speed that stops within ``escape_m``.
+  Otherwise it turns on the spot towards that heading. The next command starts from the new
+  pose as before: the rule's own arc first, then the turns, and the escape only when those
+  are stopped again. That is :meth:`ObstacleGuard.apply` alone. The controller's default
+  (guard.py, ``guard.escape_commit``) plans the escape instead:
+  :meth:`ObstacleGuard.escape_goal` with ``onward`` picks the end point past the corner --
+  the shortest run (1, 1.5, 2 x ``escape_m``), then the heading nearest the target's, from
+  whose end the straight way on to the target is free for the disc (ONWARD_M, short of the
+  target's legs), the target kept inside the laser's view -- and
+  :meth:`ObstacleGuard.toward_goal` drives there, turning on the spot first, before the rule
+  has the base again. Recomputed each step, the rule's own arc, free again after a few
+  centimetres, would turn the base back into the corner.
 
 * Someone crossing between the robot and its target is waited for, not gone round: while
   what blocks the arc includes something on the line to the target (within ``between_m`` of
   it) that moved since the scan before (``wait_moving_only``: a box or a pillar there is
   gone round at once), the base first slows on its own arc to stop short and waits, up to
-  ``wait_s`` (reason ``avoid_wait``, the controller keeps the time); only then does it go
-  round. A passer-by clears the line within a second or two; a pillar does not. Swerving at
-  full speed round a passer-by turned the laser's view away from the target just as it was
-  hidden (thesis_5_2_4_two_people, seed 2: the target's track moved to the passer-by).
+  the controller's ``guard.wait_s`` (reason ``avoid_wait``); only then does it go round. A
+  passer-by clears the line within a second or two; a pillar does not. Swerving at full
+  speed round a passer-by turns the laser's view away from the target just as it is hidden.
 
-Turning on the spot and standing still are always free. The scan is in the laser frame,
-``laser_mount_x_m`` ahead of the base origin; returns outside its field of view are not known
-(the guard protects the way ahead only).
+Turning on the spot and standing still are always free. The scan is in the laser frame, at the
+robot's ``laser_mount`` (x, y, yaw) in the base frame; its returns are turned into the base
+frame first. Returns outside its field of view are not known (the guard protects the way the
+laser looks only). The state the guard keeps from one command to the next (waiting, standing,
+the escape under way) is guard.py's.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from followbot.geometry import transform_points
 from followbot.schemas import LaserScan
-from followbot.services.laser_legs.core import beam_geometry, valid_mask
+from followbot.services.common.geometry import transform_points
+from followbot.services.common.scan import beam_geometry, valid_mask
+from followbot.services.runtime.mount import LaserMount
 
 __all__ = [
     "MOVED_M",
     "MOVED_SHARE",
     "ObstacleGuard",
+    "ScanView",
     "moved_into_frame",
-    "outside_view",
     "scan_points",
     "scan_view",
 ]
@@ -98,35 +100,39 @@ def moved_into_frame(points: np.ndarray, v: float, w: float, dt_s: float) -> np.
     return transform_points(points, (0.0, 0.0, 0.0), (dx, dy, th))
 
 
-def scan_view(scan: LaserScan, mount_x_m: float = 0.0) -> tuple[float, float, float]:
-    """(mount_x_m, first bearing, last bearing) of ``scan``'s beams, in the laser frame: the
-    part of the base's surroundings this scan covers (:func:`outside_view`)."""
+class ScanView(NamedTuple):
+    """What part of the base's surroundings one scan covers: bearings ``lo_rad`` to ``hi_rad``
+    (from the base's +x) seen from the laser at (``x_m``, ``y_m``) in the base frame."""
+
+    x_m: float
+    y_m: float
+    lo_rad: float
+    hi_rad: float
+
+
+def scan_view(scan: LaserScan, mount: LaserMount | None = None) -> ScanView:
+    """The :class:`ScanView` of ``scan``'s beams, the laser at ``mount`` (None: the base's
+    origin, looking along +x)."""
+    mount = mount or LaserMount()
     first = float(scan.angle_min_rad)
     last = first + float(scan.angle_increment_rad) * max(len(scan.ranges) - 1, 0)
-    return mount_x_m, min(first, last), max(first, last)
+    yaw = mount.yaw_rad
+    return ScanView(mount.x_m, mount.y_m, min(first, last) + yaw, max(first, last) + yaw)
 
 
-def outside_view(points: np.ndarray, view: tuple[float, float, float]) -> np.ndarray:
-    """Boolean mask of the (N, 2) base-frame ``points`` a scan of ``view`` (:func:`scan_view`)
-    does not cover: their bearing from the laser lies outside its beams."""
-    mount_x, lo, hi = view
-    if hi - lo >= 2.0 * math.pi - 1e-9:
-        return np.zeros(points.shape[0], dtype=bool)
-    b = np.arctan2(points[:, 1], points[:, 0] - mount_x)
-    mid = 0.5 * (lo + hi)
-    off = np.abs(np.angle(np.exp(1j * (b - mid))))
-    return off > 0.5 * (hi - lo)
-
-
-def scan_points(scan: LaserScan, mount_x_m: float = 0.0) -> np.ndarray:
+def scan_points(scan: LaserScan, mount: LaserMount | None = None) -> np.ndarray:
     """(N, 2) base-frame points of ``scan``'s returns (no return -- NaN, inf, 0, out of
-    range -- as laser_legs' ``valid_mask`` says), the laser ``mount_x_m`` ahead of the base."""
+    range -- as laser_legs' ``valid_mask`` says), the laser at ``mount`` (None: the base's
+    origin)."""
     r = scan.ranges_m()
     n = r.shape[0]
     valid = valid_mask(r, scan.range_min_m, scan.range_max_m)
     _, cos, sin = beam_geometry(float(scan.angle_min_rad), float(scan.angle_increment_rad), n)
     r = r[valid].astype(np.float64)
-    return np.column_stack([mount_x_m + r * cos[:n][valid], r * sin[:n][valid]])
+    points = np.column_stack([r * cos[:n][valid], r * sin[:n][valid]])
+    if mount is None or mount.is_identity:
+        return points
+    return mount.to_base(points)
 
 
 class ObstacleGuard:
@@ -202,11 +208,9 @@ class ObstacleGuard:
         points: np.ndarray,
         length: float,
         radius: float | None = None,
-        remembered: np.ndarray | None = None,
     ):
         """Free length (m, at most ``length``) along each arc (v, w) for w in ``turns``, for a
-        disc of ``radius`` (default: the body and the margin); ``remembered``: mask of the
-        points from earlier scans (:meth:`thresholds`)."""
+        disc of ``radius`` (default: the body and the margin)."""
         radius = self.radius if radius is None else radius
         free = np.full(turns.shape, length)
         if points.shape[0] == 0 or v <= 0.0:
@@ -214,49 +218,31 @@ class ObstacleGuard:
         x, y, s = self._arcs(v, turns, length)
         dx = x[:, :, None] - points[None, None, :, 0]
         dy = y[:, :, None] - points[None, None, :, 1]
-        thr = self.thresholds(points, radius, remembered, self.escape_clear)
+        thr = self.thresholds(points, radius)
         hit = (dx * dx + dy * dy < (thr * thr)[None, None, :]).any(axis=2)  # (C, K)
         first = np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
         return np.where(first < 0, length, np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0))
 
     @staticmethod
-    def thresholds(
-        points: np.ndarray,
-        radius: float,
-        remembered: np.ndarray | None = None,
-        remembered_radius: float | None = None,
-    ) -> np.ndarray:
+    def thresholds(points: np.ndarray, radius: float) -> np.ndarray:
         """(N,) how near each point a path may bring the base's centre: ``radius``, or, when
-        the base is nearer than that already, no nearer than it is (for the scan's returns,
-        as near as the nearest of them is -- the base beside a wall may drive along it).
-        ``remembered`` returns (earlier scans', out of the laser's view) keep the body off
-        them, not the margin -- ``remembered_radius`` (default ``radius``), or each no nearer
-        than itself is: they are for not touching what the laser no longer sees (a door jamb
-        beside the base), and are no excuse to come nearer the others."""
+        the base is nearer than that already, as near as the nearest return is (the base
+        beside a wall may drive along it)."""
         r = np.hypot(points[:, 0], points[:, 1])
-        scan = np.ones(r.shape, dtype=bool) if remembered is None else ~remembered
-        start = float(r[scan].min()) if scan.any() else math.inf
-        thr = np.full(r.shape, min(radius, start - 1e-3))
-        if remembered is not None:
-            near = radius if remembered_radius is None else min(radius, remembered_radius)
-            thr[remembered] = np.minimum(near, r[remembered] - 1e-3)
-        return thr
+        start = float(r.min()) if r.shape[0] else math.inf
+        return np.full(r.shape, min(radius, start - 1e-3))
 
     def _reachable(
-        self,
-        points: np.ndarray,
-        remembered: np.ndarray | None,
-        target_xy: tuple[float, float] | None,
-        length: float,
-    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
-        """The points that are not the target's legs (and their ``remembered`` mask), and of
-        those the ones the disc can reach along an arc of ``length``."""
+        self, points: np.ndarray, target_xy: tuple[float, float] | None, length: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The points that are not the target's legs, and of those the ones the disc can
+        reach along an arc of ``length``."""
         keep = np.ones(points.shape[0], dtype=bool)
         if target_xy is not None and self.ignore > 0.0:
             keep = np.hypot(points[:, 0] - target_xy[0], points[:, 1] - target_xy[1]) > self.ignore
-        seen, seen_mem = points[keep], None if remembered is None else remembered[keep]
+        seen = points[keep]
         near = np.hypot(seen[:, 0], seen[:, 1]) <= length + self.radius + self.step
-        return seen, seen_mem, seen[near], None if seen_mem is None else seen_mem[near]
+        return seen, seen[near]
 
     def progress(self, v: float, turns: np.ndarray, length: float, target_xy) -> np.ndarray:
         """How much nearer the target each arc's end lies than the base does now (m)."""
@@ -270,7 +256,6 @@ class ObstacleGuard:
         w: float,
         points: np.ndarray,
         target_xy: tuple[float, float] | None,
-        remembered: np.ndarray | None = None,
     ) -> bool:
         """The arc (v, w) -- the command the base will execute, after the limits -- brings
         the body within escape_clear_m of a return within its reach, or nearer when it is
@@ -279,10 +264,10 @@ class ObstacleGuard:
         if v <= 0.0 or points.shape[0] == 0:
             return False
         length = self.reach_m(v)
-        _, _, pts, mem = self._reachable(points, remembered, target_xy, length)
+        _, pts = self._reachable(points, target_xy, length)
         if pts.shape[0] == 0:
             return False
-        free = self.free_lengths(v, np.array([w]), pts, length, self.escape_clear, mem)
+        free = self.free_lengths(v, np.array([w]), pts, length, self.escape_clear)
         return float(free[0]) < length
 
     def apply(
@@ -294,28 +279,26 @@ class ObstacleGuard:
         may_swerve: bool = True,
         previous: np.ndarray | None = None,
         may_escape: bool = True,
-        remembered: np.ndarray | None = None,
     ) -> tuple[float, float, str | None]:
         """(v, w, reason) for the command (v, w) and the scan's base-frame ``points``;
         reason None: unchanged. ``may_swerve`` False: something on the line to the target
         is waited for (reason ``avoid_wait``) rather than gone round; ``previous``: the scan
         before, moved into this scan's frame -- then only something that moved is waited
         for (``wait_moving_only``); ``may_escape`` False: stopped, it stands (the controller
-        lets the escape start only after avoid_escape_after_s); ``remembered``: mask of the
-        points that are earlier scans' returns the scan no longer covers (:meth:`thresholds`)."""
+        lets the escape start only after guard.escape_after_s)."""
         if v <= 0.0 or points.shape[0] == 0:
             return v, w, None
         length = self.reach_m(v)
         # only what the disc can reach along any arc of this length
-        seen, seen_mem, pts, mem = self._reachable(points, remembered, target_xy, length)
+        seen, pts = self._reachable(points, target_xy, length)
         if pts.shape[0] == 0:
             return v, w, None
-        own = float(self.free_lengths(v, np.array([w]), pts, length, remembered=mem)[0])
+        own = float(self.free_lengths(v, np.array([w]), pts, length)[0])
         if own >= length:
             return v, w, None
         if not may_swerve and target_xy is not None and self._between(pts, target_xy, previous):
             return self._slow(v, w, own, "avoid_wait")
-        free = self.free_lengths(v, self.turns, pts, length, remembered=mem)
+        free = self.free_lengths(v, self.turns, pts, length)
         ok = free >= length
         if target_xy is not None:  # a way round must still lead towards the target
             p0 = float(self.progress(v, np.array([w]), length, target_xy)[0])
@@ -328,26 +311,20 @@ class ObstacleGuard:
             return v, float(self.turns[best]), "avoid_turn"
         out = self._slow(v, w, own, "avoid_slow")
         if out[2] == "avoid_stop" and may_escape and self.escape_m > 0.0 and target_xy is not None:
-            return self._escape(v, seen, target_xy, seen_mem) or out
+            return self._escape(v, seen, target_xy) or out
         return out
 
-    def free_headings(self, points: np.ndarray, remembered: np.ndarray | None = None) -> np.ndarray:
+    def free_headings(self, points: np.ndarray) -> np.ndarray:
         """Of ``headings``, those along which a straight run of escape_m keeps the body
         ``escape_clear_m`` clear of every point (or, when it is nearer already, comes no
         nearer)."""
-        return self._runs_free(points, self.headings, self.escape_m, remembered)
+        return self._runs_free(points, self.headings, self.escape_m)
 
-    def _runs_free(
-        self,
-        points: np.ndarray,
-        headings: np.ndarray,
-        d_run: float,
-        remembered: np.ndarray | None = None,
-    ) -> np.ndarray:
+    def _runs_free(self, points: np.ndarray, headings: np.ndarray, d_run: float) -> np.ndarray:
         """Of ``headings``, those along which a straight run of ``d_run`` from the base keeps
         the body escape_clear_m clear of every point (:meth:`free_headings`)."""
         near = np.hypot(points[:, 0], points[:, 1]) <= d_run + self.escape_clear
-        pts, mem = points[near], None if remembered is None else remembered[near]
+        pts = points[near]
         if pts.shape[0] == 0:
             return np.ones(headings.shape, dtype=bool)
         ux, uy = np.cos(headings)[:, None], np.sin(headings)[:, None]
@@ -355,14 +332,13 @@ class ObstacleGuard:
         t = np.clip(ux * pts[None, :, 0] + uy * pts[None, :, 1], 0.0, d_run)  # (H, N)
         d = np.hypot(pts[None, :, 0] - t * ux, pts[None, :, 1] - t * uy)
         # already nearer than escape_clear_m: no closing in further (as for the arcs)
-        thr = self.thresholds(pts, self.escape_clear, mem, self.escape_clear)
+        thr = self.thresholds(pts, self.escape_clear)
         return ~(d < thr[None, :]).any(axis=1)
 
     def escape_goal(
         self,
         points: np.ndarray,
         target_xy: tuple[float, float],
-        remembered: np.ndarray | None = None,
         onward: bool = False,
         keep_in_view: tuple[float, float] | None = None,
     ) -> tuple[float, float] | None:
@@ -375,23 +351,20 @@ class ObstacleGuard:
         margin (up to ONWARD_M, short of its legs) -- the point past the corner, not merely
         away from it; none such: as without. ``keep_in_view`` (lo, hi): only headings that
         leave the target's bearing within (lo, hi) of the base's heading once it faces them
-        (the laser's view; laser frame taken as the base's)."""
+        (the laser's view, :class:`ScanView`, its offset from the base's origin neglected)."""
         keep = np.hypot(points[:, 0] - target_xy[0], points[:, 1] - target_xy[1]) > self.ignore
         points = points[keep]
-        remembered = None if remembered is None else remembered[keep]
         bearing = math.atan2(target_xy[1], target_xy[0])
         off = np.abs(np.angle(np.exp(1j * (self.headings - bearing))))
         toward = off <= math.pi / 2
         if keep_in_view is not None:
             rel = np.angle(np.exp(1j * (bearing - self.headings)))
             toward &= (rel >= keep_in_view[0]) & (rel <= keep_in_view[1])
-        free = self.free_headings(points, remembered)  # escape_m runs
+        free = self.free_headings(points)  # escape_m runs
         if onward:
             for k in (1.0, 1.5, 2.0):
                 d_run = k * self.escape_m
-                ok = toward & (
-                    free if k == 1.0 else self._runs_free(points, self.headings, d_run, remembered)
-                )
+                ok = toward & (free if k == 1.0 else self._runs_free(points, self.headings, d_run))
                 if not ok.any():
                     continue
                 cand = np.where(ok)[0]
@@ -399,7 +372,7 @@ class ObstacleGuard:
                 ends = d_run * np.column_stack(
                     [np.cos(self.headings[cand]), np.sin(self.headings[cand])]
                 )
-                clear = self._onward_free(points, ends, target_xy, remembered)
+                clear = self._onward_free(points, ends, target_xy)
                 if clear.any():
                     end = ends[int(np.argmax(clear))]
                     return float(end[0]), float(end[1])
@@ -419,11 +392,10 @@ class ObstacleGuard:
         points: np.ndarray,
         ends: np.ndarray,
         target_xy: tuple[float, float],
-        remembered: np.ndarray | None = None,
     ) -> np.ndarray:
         """(E,) for each end point (E, 2): the straight way from it towards the target, up
         to ONWARD_M and short of the target's legs (ignore_near_target_m), keeps the body and
-        the margin off every point (remembered ones: the body and escape_clear_m)."""
+        the margin off every point."""
         to = np.asarray(target_xy, dtype=float)[None, :] - ends  # (E, 2)
         dist = np.hypot(to[:, 0], to[:, 1])
         run = np.clip(np.minimum(dist - self.ignore, ONWARD_M), 0.0, None)
@@ -433,17 +405,13 @@ class ObstacleGuard:
         rel = points[None, :, :] - ends[:, None, :]  # (E, N, 2)
         t = np.clip((rel * u[:, None, :]).sum(axis=2), 0.0, run[:, None])
         d = np.hypot(rel[:, :, 0] - t * u[:, None, 0], rel[:, :, 1] - t * u[:, None, 1])
-        thr = np.full(points.shape[0], self.radius)
-        if remembered is not None:
-            thr[remembered] = self.escape_clear
-        return ~(d < thr[None, :]).any(axis=1)
+        return ~(d < self.radius).any(axis=1)
 
     def toward_goal(
         self,
         v: float,
         goal: tuple[float, float],
         points: np.ndarray,
-        remembered: np.ndarray | None = None,
         reached_m: float = 0.03,
         aligned_rad: float = math.radians(5.0),
     ) -> tuple[float, float, str] | None:
@@ -459,7 +427,7 @@ class ObstacleGuard:
         if abs(phi) > aligned_rad:
             w = min(self.max_turn, 4.0 * abs(phi) / self.horizon)
             return 0.0, math.copysign(w, phi), "avoid_escape"
-        if points.shape[0] and not self._runs_free(points, np.array([phi]), dist, remembered)[0]:
+        if points.shape[0] and not self._runs_free(points, np.array([phi]), dist)[0]:
             return None
         # the escape's own speed (what stops within escape_m), braking to stop at the goal
         speed = min(v, self.speed_for(self.escape_m), math.sqrt(2.0 * self.decel * dist))
@@ -471,14 +439,13 @@ class ObstacleGuard:
         v: float,
         points: np.ndarray,
         target_xy: tuple[float, float],
-        remembered: np.ndarray | None = None,
     ) -> tuple[float, float, str] | None:
         """The escape of the module doc, recomputed from this pose: (v, w, "avoid_escape"),
         or None (no free heading within 90 deg of the target's bearing)."""
-        goal = self.escape_goal(points, target_xy, remembered)
+        goal = self.escape_goal(points, target_xy)
         if goal is None:
             return None
-        return self.toward_goal(v, goal, points, remembered, aligned_rad=0.0)
+        return self.toward_goal(v, goal, points, aligned_rad=0.0)
 
     def _slow(self, v: float, w: float, own: float, reason: str) -> tuple[float, float, str]:
         """The command's own arc, at the speed that stops within its free length ``own``."""

@@ -23,7 +23,8 @@ import numpy as np
 from followbot.schemas import LaserScan, TrackState
 
 from .avoid import scan_points, scan_view
-from .core import ESCAPE_VIEW_MARGIN_RAD, ControllerSettings, FollowController
+from .core import ControllerSettings, FollowController
+from .guard import ESCAPE_VIEW_MARGIN_RAD, GuardSettings
 
 BEAMS = 720
 FOV = math.radians(270.0)
@@ -73,13 +74,13 @@ def _median_us(fn, repeats: int = 300) -> float:
 def main() -> None:
     target = TrackState(stamp_ns=0, status="tracking", x_m=2.5, y_m=0.0)
     rows = []
-    rule = FollowController(ControllerSettings(avoid_obstacles=False))
+    rule = FollowController(ControllerSettings(guard=GuardSettings(enabled=False)))
     rows.append(("thesis rule alone", _median_us(lambda: rule.on_target(target, 0.12))))
     for case in ("room", "wall", "pillar", "corner"):
         scan = _scan(case)
         pts, view = scan_points(scan), scan_view(scan)
         # (the escape off: standing at the corner, every arc and heading is checked each step)
-        ctl = FollowController(ControllerSettings(avoid_wait_s=0.0, avoid_escape_m=0.0))
+        ctl = FollowController(ControllerSettings(guard=GuardSettings(wait_s=0.0, escape_m=0.0)))
         reason = ctl.on_target(target, 0.12, pts, view).reason
         us = _median_us(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
         rows.append((f"guard, {case} ({reason})", us))
@@ -87,25 +88,17 @@ def main() -> None:
     # each step under way (turning towards the end, or driving there with its run checked)
     scan = _scan("corner")
     pts, view = scan_points(scan), scan_view(scan)
-    ctl = FollowController(ControllerSettings(avoid_wait_s=0.0))
+    ctl = FollowController(ControllerSettings(guard=GuardSettings(wait_s=0.0)))
     xy = (target.x_m, target.y_m)
-    keep = (view[1] + ESCAPE_VIEW_MARGIN_RAD, view[2] - ESCAPE_VIEW_MARGIN_RAD)
-    plan = ctl.guard.escape_goal  # what the controller calls as the escape begins
+    keep = (view.lo_rad + ESCAPE_VIEW_MARGIN_RAD, view.hi_rad - ESCAPE_VIEW_MARGIN_RAD)
+    plan = ctl.guard.geometry.escape_goal  # what the controller calls as the escape begins
     rows.append(
-        ("escape, planning its end (corner)", _median_us(lambda: plan(pts, xy, None, True, keep)))
+        ("escape, planning its end (corner)", _median_us(lambda: plan(pts, xy, True, keep)))
     )
-    goal = plan(pts, xy, None, True, keep)
+    goal = plan(pts, xy, True, keep)
     ahead = (math.hypot(*goal), 0.0)  # facing it: the run there is checked
-    toward = ctl.guard.toward_goal
+    toward = ctl.guard.geometry.toward_goal
     rows.append(("escape, one step driving there", _median_us(lambda: toward(0.75, ahead, pts))))
-    for case in ("wall", "corner"):  # with 3 s of remembered returns (off by default)
-        scan = _scan(case)
-        pts, view = scan_points(scan), scan_view(scan)
-        ctl = FollowController(ControllerSettings(avoid_wait_s=0.0, avoid_memory_s=3.0))
-        for _ in range(30):  # fill the memory (the base drives on, the scan stays: a smear)
-            reason = ctl.on_target(target, 0.12, pts, view).reason
-        us = _median_us(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
-        rows.append((f"guard + avoid_memory_s 3, {case} ({reason})", us))
     room = _scan("room")
     rows.append(("scan -> points", _median_us(lambda: scan_points(room))))
     print(f"controller, one command ({BEAMS}-beam scan), median of 300:")

@@ -6,7 +6,7 @@ rule 2). A watchdog timer brakes to zero velocity (reason ``stale``) when no tar
 liveliness token disappears; its commands carry the stamp of the last target. Limits hold for
 every command (core.py).
 
-    followbot run controller --set max_speed_mps=0.5
+    followbot run controller --set limits.max_speed_mps=0.5
 """
 
 from __future__ import annotations
@@ -38,16 +38,22 @@ class ControllerNodeSettings(_ControllerNodeBase, kw_only=True, forbid_unknown_f
     """No target for this long (wall clock) -> brake to zero. 0 disables (lock-step on a slow
     machine, where wall time between scans means nothing)."""
     watchdog_period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.05
+    """Seconds between two checks of the watchdog (stale target, tracker gone); also the dt
+    of its first braking command."""
     tracker_service: str = "tracker"
+    """The service name whose liveliness token the watchdog watches: when it disappears, the
+    base brakes (reason tracker_gone)."""
     nominal_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.12
     """dt for the first target and after gaps longer than max_dt_s."""
     max_dt_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
+    """The limits use the time between two targets' stamps as dt, up to this (s); a longer
+    gap counts as nominal_dt_s."""
     scan_wait_s: Annotated[float, msgspec.Meta(ge=0)] = 0.1
-    """avoid_obstacles: a target whose scan has not arrived yet (the tracker's answer can
+    """guard.enabled: a target whose scan has not arrived yet (the tracker's answer can
     overtake the laser's own message) waits this long (wall clock) for it; then it is
     answered with the newest older scan, and Health's notes count it."""
     scan_max_age_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5
-    """avoid_obstacles: a scan stamped more than this before the target's scan is no scan
+    """guard.enabled: a scan stamped more than this before the target's scan is no scan
     (the base stops)."""
 
 
@@ -56,23 +62,26 @@ def core_settings(settings: msgspec.Struct) -> ControllerSettings:
     return ControllerSettings(**{n: getattr(settings, n) for n in names})
 
 
-def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
-    ctl = FollowController(core_settings(settings))
-    cmd_pub = node.publisher("control/cmd_vel")
-    pan_pub = node.publisher("control/pan")
-    st = {
-        "last_target": None,  # monotonic s of the last target
-        "last_stamp": None,  # its stamp_ns
-        "last_out": None,  # monotonic s of the last command
-        "watchdog_out": False,  # was the last command the watchdog's?
-        "tracker_alive": None,  # None: not known yet
-        "scans": {},  # avoid_obstacles: stamp_ns -> base-frame points, the last few
-        "pending": None,  # (target, monotonic s): waiting for the scan of its stamp
-        "scans_missed": 0,  # targets answered without the scan of their stamp
-    }
+class _Loop:
+    """The node's state and handlers (all run in the node's loop, never concurrently)."""
 
-    def publish(c: Command, stamp_ns: int) -> None:
-        cmd_pub.put(
+    def __init__(self, node: Node, settings: ControllerNodeSettings) -> None:
+        self.node, self.s = node, settings
+        self.ctl = FollowController(core_settings(settings))
+        self.cmd_pub = node.publisher("control/cmd_vel")
+        self.pan_pub = node.publisher("control/pan")
+        self.last_target: float | None = None  # monotonic s of the last target
+        self.last_stamp: int | None = None  # its stamp_ns
+        self.last_out: float | None = None  # monotonic s of the last command
+        self.watchdog_out = False  # was the last command the watchdog's?
+        self.tracker_alive: bool | None = None  # None: not known yet
+        # guard.enabled: stamp_ns -> (base-frame points, scan_view), the last few scans
+        self.scans: dict[int, tuple] = {}
+        self.pending: tuple[TrackState, float] | None = None  # waiting for its scan
+        self.scans_missed = 0  # targets answered without the scan of their stamp
+
+    def publish(self, c: Command, stamp_ns: int) -> None:
+        self.cmd_pub.put(
             VelocityCommand(
                 stamp_ns=stamp_ns,
                 frame_id="base_link",
@@ -81,121 +90,119 @@ def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
                 reason=c.reason,
             )
         )
-        pan_pub.put(
+        self.pan_pub.put(
             PanCommand(stamp_ns=stamp_ns, frame_id="base_link", pan_rad=c.pan_rad, reason=c.reason)
         )
-        st["last_out"] = time.monotonic()
+        self.last_out = time.monotonic()
 
-    def on_target(t: TrackState) -> None:
-        if ctl.guard is not None:
-            if st["pending"] is not None:  # an older one still waiting: answer it now
-                answer(st["pending"][0])
-            if t.stamp_ns not in st["scans"]:
+    def on_target(self, t: TrackState) -> None:
+        if self.ctl.guard is not None:
+            if self.pending is not None:  # an older one still waiting: answer it now
+                self.answer(self.pending[0])
+            if t.stamp_ns not in self.scans:
                 # its scan (straight from the laser) is not here yet: wait for it a little, so
                 # the answer does not depend on which message won the race (lock-step runs
                 # stay reproducible); watchdog() answers with the last scan after scan_wait_s
-                st["pending"] = (t, time.monotonic())
+                self.pending = (t, time.monotonic())
                 return
-        answer(t)
+        self.answer(t)
 
-    def answer(t: TrackState) -> None:
-        st["pending"] = None
+    def answer(self, t: TrackState) -> None:
+        self.pending = None
         now = time.monotonic()
-        last_stamp = st["last_stamp"]
-        if st["watchdog_out"] and last_stamp is not None and t.stamp_ns <= last_stamp:
+        last_stamp = self.last_stamp
+        if self.watchdog_out and last_stamp is not None and t.stamp_ns <= last_stamp:
             # the watchdog is braking and this target is no newer than the last: it says
             # nothing new (a tracker whose input is stuck), so braking goes on
-            publish(ctl.stop(now - st["last_out"], "stale"), last_stamp)
+            self.publish(self.ctl.stop(now - self.last_out, "stale"), last_stamp)
             return
-        if st["watchdog_out"] and st["last_out"] is not None:
-            dt = now - st["last_out"]
-        elif last_stamp is not None and 0 < t.stamp_ns - last_stamp <= settings.max_dt_s * 1e9:
+        if self.watchdog_out and self.last_out is not None:
+            dt = now - self.last_out
+        elif last_stamp is not None and 0 < t.stamp_ns - last_stamp <= self.s.max_dt_s * 1e9:
             dt = (t.stamp_ns - last_stamp) / 1e9
         elif last_stamp is not None and t.stamp_ns <= last_stamp:
             dt = 0.0  # repeated or older stamp: answer it, change nothing
         else:
-            dt = settings.nominal_dt_s
-        scan = obstacles_for(t.stamp_ns) if ctl.guard is not None else None
+            dt = self.s.nominal_dt_s
+        scan = self.obstacles_for(t.stamp_ns) if self.ctl.guard is not None else None
         pts, view = (None, None) if scan is None else scan
-        c = ctl.on_target(t, dt, pts, view)
+        c = self.ctl.on_target(t, dt, pts, view)
         if last_stamp is None or t.stamp_ns > last_stamp:
             # only a target newer than the last one is fresh: a tracker repeating a stamp
             # (its input stuck) must not keep the watchdog quiet
-            st["last_target"] = now
-        st["last_stamp"] = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
-        st["watchdog_out"] = False
-        publish(c, t.stamp_ns)
+            self.last_target = now
+        self.last_stamp = t.stamp_ns if last_stamp is None else max(last_stamp, t.stamp_ns)
+        self.watchdog_out = False
+        self.publish(c, t.stamp_ns)
 
-    def on_scan(scan: LaserScan) -> None:
-        pts = scan_points(scan, settings.laser_mount_x_m)
-        scans = st["scans"]
-        scans[scan.stamp_ns] = (pts, scan_view(scan, settings.laser_mount_x_m))
-        while len(scans) > 8:
-            del scans[min(scans)]
-        pending = st["pending"]
-        if pending is not None and pending[0].stamp_ns == scan.stamp_ns:
-            answer(pending[0])
+    def on_scan(self, scan: LaserScan) -> None:
+        pts = scan_points(scan, self.s.laser_mount)  # base frame
+        self.scans[scan.stamp_ns] = (pts, scan_view(scan, self.s.laser_mount))
+        while len(self.scans) > 8:
+            del self.scans[min(self.scans)]
+        if self.pending is not None and self.pending[0].stamp_ns == scan.stamp_ns:
+            self.answer(self.pending[0])
 
-    def obstacles_for(stamp_ns: int):
+    def obstacles_for(self, stamp_ns: int):
         """The scan of the target's stamp, else the newest older one not too old."""
-        scans = st["scans"]
-        if stamp_ns in scans:
-            return scans[stamp_ns]
-        older = [s for s in scans if s < stamp_ns]
-        if not older or stamp_ns - max(older) > settings.scan_max_age_s * 1e9:
+        if stamp_ns in self.scans:
+            return self.scans[stamp_ns]
+        older = [s for s in self.scans if s < stamp_ns]
+        if not older or stamp_ns - max(older) > self.s.scan_max_age_s * 1e9:
             return None
-        return scans[max(older)]
+        return self.scans[max(older)]
 
-    def watchdog() -> None:
+    def watchdog(self) -> None:
         now = time.monotonic()
-        pending = st["pending"]
-        if pending is not None and now - pending[1] >= settings.scan_wait_s:
-            st["scans_missed"] += 1  # answered with the last scan before it (or none: stop)
-            node.notes = [f"targets_without_their_scan={st['scans_missed']}"]
-            answer(pending[0])
-        gone = st["tracker_alive"] is False
-        stale = settings.stale_after_s > 0 and (
-            st["last_target"] is None or now - st["last_target"] > settings.stale_after_s
+        if self.pending is not None and now - self.pending[1] >= self.s.scan_wait_s:
+            self.scans_missed += 1  # answered with the last scan before it (or none: stop)
+            self.node.notes = [f"targets_without_their_scan={self.scans_missed}"]
+            self.answer(self.pending[0])
+        gone = self.tracker_alive is False
+        stale = self.s.stale_after_s > 0 and (
+            self.last_target is None or now - self.last_target > self.s.stale_after_s
         )
         if not (gone or stale):
             return
-        if st["last_target"] is None and ctl.at_rest and st["last_out"] is not None:
+        if self.last_target is None and self.ctl.at_rest and self.last_out is not None:
             return  # never followed anyone and already said zero
-        if ctl.at_rest and st["watchdog_out"]:
+        if self.ctl.at_rest and self.watchdog_out:
             return  # already braked to rest and said so
-        dt = settings.watchdog_period_s if st["last_out"] is None else now - st["last_out"]
-        c = ctl.stop(dt, "tracker_gone" if gone else "stale")
-        publish(c, st["last_stamp"] or 0)
-        st["watchdog_out"] = True
+        dt = self.s.watchdog_period_s if self.last_out is None else now - self.last_out
+        c = self.ctl.stop(dt, "tracker_gone" if gone else "stale")
+        self.publish(c, self.last_stamp or 0)
+        self.watchdog_out = True
 
-    def on_tracker_alive(alive: bool) -> None:
-        st["tracker_alive"] = alive
+    def on_tracker_alive(self, alive: bool) -> None:
+        self.tracker_alive = alive
         if alive:
-            node.clear_condition("tracker")
+            self.node.clear_condition("tracker")
         else:
-            node.set_condition("tracker", "degraded", "tracker gone: braking to a stop")
-        if not alive:
-            node.log.warning("tracker liveliness gone: braking to zero velocity")
-            watchdog()
+            self.node.set_condition("tracker", "degraded", "tracker gone: braking to a stop")
+            self.node.log.warning("tracker liveliness gone: braking to zero velocity")
+            self.watchdog()
 
-    def restart_targets() -> None:
-        st.update(last_stamp=None, pending=None)
+    def restart_targets(self) -> None:
+        self.last_stamp, self.pending = None, None
 
-    def restart_scans() -> None:
-        st["scans"].clear()
+    def restart_scans(self) -> None:
+        self.scans.clear()
 
+
+def setup(node: Node, settings: ControllerNodeSettings) -> FollowController:
+    loop = _Loop(node, settings)
     node.subscribe(
         "tracking/target",
-        on_target,
+        loop.on_target,
         policy="all",
-        on_restart=restart_targets,
+        on_restart=loop.restart_targets,
         expect_within_s=settings.stale_after_s or None,
     )
-    if ctl.guard is not None:
-        node.subscribe("sensors/scan", on_scan, policy="all", on_restart=restart_scans)
-    node.watch_alive(settings.tracker_service, on_tracker_alive)
-    node.every(settings.watchdog_period_s, watchdog, name="watchdog")
-    return ctl
+    if loop.ctl.guard is not None:
+        node.subscribe("sensors/scan", loop.on_scan, policy="all", on_restart=loop.restart_scans)
+    node.watch_alive(settings.tracker_service, loop.on_tracker_alive)
+    node.every(settings.watchdog_period_s, loop.watchdog, name="watchdog")
+    return loop.ctl
 
 
 def main(argv: list[str] | None = None) -> int:

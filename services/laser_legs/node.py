@@ -15,19 +15,18 @@ Health) — the lock-step rule 2 of docs/runtime.md.
 from __future__ import annotations
 
 import math
-import time
-from collections import deque
 from typing import Annotated, Any, ClassVar
 
 import msgspec
 
 from followbot.schemas import LaserScan
+from followbot.services.runtime.lockstep import HeldInputs
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError, removed
 
 from .core import LegDetector, detector_clip_m, empty_candidates, horizon, scan_reach_m
-from .detectors import REGISTRY, make_detector
+from .detectors import REGISTRY, detector_settings, make_detector
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
 
@@ -36,6 +35,11 @@ __all__ = ["LaserLegsSettings", "build_detector", "check", "main", "setup"]
 
 class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     retired_settings: ClassVar[dict[str, str]] = {
+        "laser_pose_in_base": (
+            "was replaced by laser_mount, one setting every stage reads: write "
+            "laser_mount: {x_m: X, y_m: Y, yaw_deg: DEGREES} at the top of your settings "
+            "(docs/robot.md)"
+        ),
         "detector_settings_while_lost": removed(
             "a second detector while the target is lost, measured with the tracker's removed "
             "look_far_walking_m and left off, see docs/tracker_log.md"
@@ -54,6 +58,8 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
     """A target older than this (scan stamp minus target stamp) is not used for gating."""
     odometry_max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.2
+    """Criterion 3's ego-motion: the robot's pose at a scan stamp past the last odometry is
+    extrapolated with its last twist for at most this long (s); later, no prediction."""
     lockstep_target_wait_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.0
     """Lock-step runs: hold a scan until the tracker's target for the previous scan has
     arrived (it races the next scan over another link), at most this long. 0 (live): never
@@ -62,8 +68,6 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     """Lock-step runs: hold scan k until odometry stamped at or after k has arrived (two
     topics reach a node in no guaranteed order), at most this long. 0 (live, or no
     odometry): never wait."""
-    laser_pose_in_base: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """The laser's (x_m, y_m, yaw_rad) in the base frame (tracking/target is in base_link)."""
     horizon_bin_deg: Annotated[float, msgspec.Meta(gt=0, le=45)] | None = 1.0
     """Publish with each scan's candidates the nearest return per bin of this many degrees
     (perception/candidates ``horizon``; the scan's resolution when coarser), so the tracker can
@@ -90,7 +94,7 @@ def build_detector(settings: LaserLegsSettings, *, check_only: bool = False) -> 
     key = "detector_settings"
     try:
         if check_only:
-            msgspec.convert(overrides, cls.settings_type)
+            detector_settings(cls.settings_type, overrides)
             return None
         detector = make_detector(settings.detector, overrides)
     except (ValueError, TypeError) as exc:
@@ -113,130 +117,123 @@ def check(settings: LaserLegsSettings) -> None:
         check_files()
 
 
-def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
-    detector = build_detector(settings)
-    assert detector is not None
-    # reach_m: the detector's clip (fixed), met with each scan's range_max_m
-    clip_m = detector_clip_m(detector)
-    follows_target = settings.use_target_prediction
-    out = node.publisher("perception/candidates")
-    predictor = TargetPredictor(
-        max_age_s=settings.prediction_max_age_s,
-        laser_pose=settings.laser_pose_in_base,
-        max_extrapolation_s=settings.odometry_max_extrapolation_s,
-    )
+class _Stage:
+    """laser_legs' loop: each scan -> the detector (gated by the target's prediction when
+    criterion 3 is on) -> one PersonCandidates, with its horizon and reach.
 
-    # Lock-step: scans held until the target naming the previous scan arrives (see settings).
-    bin_rad = None if settings.horizon_bin_deg is None else math.radians(settings.horizon_bin_deg)
-    held: deque[tuple[LaserScan, float]] = deque()
-    stamps = {"scan": -1, "target": -1, "odom": -1}
-    counts = dict.fromkeys(("waits", "wait_timeouts", "horizon_errors"), 0)
-    target_wait = settings.lockstep_target_wait_s if follows_target else 0.0
-    odom_wait = settings.lockstep_odometry_wait_s if settings.use_target_prediction else 0.0
-    wait_s = max(target_wait, odom_wait)
+    Lock-step: a scan is held (runtime.lockstep.HeldInputs) until the odometry of its instant
+    and the tracker's answer to the previous scan have arrived (see the settings)."""
 
-    def ready(scan: LaserScan) -> bool:
+    def __init__(self, node: Node, settings: LaserLegsSettings) -> None:
+        self.node, self.s = node, settings
+        self.detector = build_detector(settings)
+        # reach_m: the detector's clip (fixed), met with each scan's range_max_m
+        self.clip_m = detector_clip_m(self.detector)
+        self.out = node.publisher("perception/candidates")
+        self.predictor = TargetPredictor(
+            max_age_s=settings.prediction_max_age_s,
+            laser_pose=settings.laser_mount.pose(),  # tracking/target is in the base frame
+            max_extrapolation_s=settings.odometry_max_extrapolation_s,
+        )
+        deg = settings.horizon_bin_deg
+        self.bin_rad = None if deg is None else math.radians(deg)
+        self.stamps = {"scan": -1, "target": -1, "odom": -1}
+        self.horizon_errors = 0
+        gated = settings.use_target_prediction
+        self.target_wait = settings.lockstep_target_wait_s if gated else 0.0
+        self.odom_wait = settings.lockstep_odometry_wait_s if gated else 0.0
+        self.held = HeldInputs(
+            node, self.process, self.ready, max(self.target_wait, self.odom_wait), "scans"
+        )
+
+    def ready(self, scan: LaserScan) -> bool:
         # the odometry of the scan's instant (sent before the scan, on another topic)
-        if odom_wait > 0 and stamps["odom"] < scan.stamp_ns:
+        if self.odom_wait > 0 and self.stamps["odom"] < scan.stamp_ns:
             return False
         # the tracker answers every scan, so once it has answered any, wait for its answer
         # to the previous scan before gating the next one on it
-        return target_wait <= 0 or stamps["target"] < 0 or stamps["target"] >= stamps["scan"]
+        t = self.stamps["target"]
+        return self.target_wait <= 0 or t < 0 or t >= self.stamps["scan"]
 
-    def on_scan(scan: LaserScan) -> None:
-        if wait_s > 0 and (held or not ready(scan)):
-            held.append((scan, time.monotonic()))
-            counts["waits"] += 1
-            return
-        process(scan)
+    def on_target(self, target) -> None:
+        self.predictor.add_target(target)
+        self.stamps["target"] = max(self.stamps["target"], target.stamp_ns)
+        self.held.release()
 
-    def on_target(target) -> None:
-        predictor.add_target(target)
-        stamps["target"] = max(stamps["target"], target.stamp_ns)
-        release()
+    def on_odometry(self, odom) -> None:
+        self.predictor.add_odometry(odom)
+        self.stamps["odom"] = max(self.stamps["odom"], odom.stamp_ns)
+        self.held.release()
 
-    def on_odometry(odom) -> None:
-        predictor.add_odometry(odom)
-        stamps["odom"] = max(stamps["odom"], odom.stamp_ns)
-        release()
-
-    def release(force: bool = False) -> None:
-        while held and (force or ready(held[0][0])):
-            process(held.popleft()[0])
-            force = False
-
-    def check_held() -> None:
-        if held and time.monotonic() - held[0][1] > wait_s:
-            counts["wait_timeouts"] += 1
-            release(force=True)
-
-    def process(scan: LaserScan) -> None:
-        stamps["scan"] = max(stamps["scan"], scan.stamp_ns)
-        prediction = predictor.predict(scan) if settings.use_target_prediction else None
+    def process(self, scan: LaserScan) -> None:
+        self.stamps["scan"] = max(self.stamps["scan"], scan.stamp_ns)
+        use = self.s.use_target_prediction
+        prediction = self.predictor.predict(scan) if use else None
         try:
-            seen = None if bin_rad is None else horizon(scan, bin_rad)
+            seen = None if self.bin_rad is None else horizon(scan, self.bin_rad)
         except Exception:  # never on a valid scan (property-tested); the candidates still go
-            node.log.exception("horizon of scan %d failed; candidates sent without it", scan.seq)
-            counts["horizon_errors"] += 1
+            self.node.log.exception(
+                "horizon of scan %d failed; candidates sent without it", scan.seq
+            )
+            self.horizon_errors += 1
             seen = None
-        reach = scan_reach_m(clip_m, scan)
+        reach = scan_reach_m(self.clip_m, scan)
         try:
-            result = detector.detect(scan, prediction)
+            result = self.detector.detect(scan, prediction)
         except Exception:
             # rule 2: one output per scan even when the detector fails; the error is counted
-            empty = empty_candidates(scan, detector.name)
-            out.put(msgspec.structs.replace(empty, horizon=seen, reach_m=reach))
+            empty = empty_candidates(scan, self.detector.name)
+            self.out.put(msgspec.structs.replace(empty, horizon=seen, reach_m=reach))
             raise
-        out.put(msgspec.structs.replace(result, horizon=seen, reach_m=reach))
+        self.out.put(msgspec.structs.replace(result, horizon=seen, reach_m=reach))
 
-    def restart() -> None:
+    def restart(self) -> None:
         """The scans' source restarted with a new clock: start as if new (detectors with a
         history, e.g. a learned background, forget it; held scans and the target go)."""
-        nonlocal detector
-        detector = build_detector(settings)
-        held.clear()
-        stamps.update(scan=-1, target=-1, odom=-1)
-        predictor.reset()
+        self.detector = build_detector(self.s)
+        self.held.clear()
+        self.stamps.update(scan=-1, target=-1, odom=-1)
+        self.predictor.reset()
 
-    def restart_target() -> None:
-        predictor.target = None
-        stamps["target"] = -1
+    def restart_target(self) -> None:
+        self.predictor.target = None
+        self.stamps["target"] = -1
 
-    def restart_odometry() -> None:
-        predictor.reset_odometry()
-        stamps["odom"] = -1
+    def restart_odometry(self) -> None:
+        self.predictor.reset_odometry()
+        self.stamps["odom"] = -1
 
-    node.subscribe(
-        "sensors/scan",
-        on_scan,
-        policy="all",
-        dispatch="inline",
-        on_restart=restart,
-        expect_within_s=1.0,
-    )
-    if follows_target:
-        node.subscribe("tracking/target", on_target, policy="all", on_restart=restart_target)
-    if settings.use_target_prediction:
-        node.subscribe("sensors/odom", on_odometry, policy="all", on_restart=restart_odometry)
-    if wait_s > 0:
-        node.every(0.005, check_held, name="held_scans")
-
-    def notes() -> None:
-        node.notes = [
-            f"detector={detector.name}",
-            f"body_candidates_dropped={getattr(detector, 'dropped', 0)}",
-            f"body_beams={getattr(detector, 'body_beams', 0)}",
-            f"gated_scans={predictor.used}",
-            f"prediction_skipped={predictor.skipped}",
-            f"lockstep_waits={counts['waits']}",
-            f"lockstep_wait_timeouts={counts['wait_timeouts']}",
-            f"horizon_errors={counts['horizon_errors']}",
+    def notes(self) -> None:
+        d = self.detector
+        self.node.notes = [
+            f"detector={d.name}",
+            f"body_candidates_dropped={getattr(d, 'dropped', 0)}",
+            f"body_beams={getattr(d, 'body_beams', 0)}",
+            f"gated_scans={self.predictor.used}",
+            f"prediction_skipped={self.predictor.skipped}",
+            f"lockstep_waits={self.held.waits}",
+            f"lockstep_wait_timeouts={self.held.timeouts}",
+            f"horizon_errors={self.horizon_errors}",
         ]
 
-    notes()
-    node.every(settings.health_period_s, notes, name="notes")
-    node.log.info("detector %s, criterion 3 %s", detector.name, settings.use_target_prediction)
-    return predictor
+
+def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
+    st = _Stage(node, settings)
+    node.subscribe(
+        "sensors/scan",
+        st.held.offer,
+        policy="all",
+        dispatch="inline",
+        on_restart=st.restart,
+        expect_within_s=1.0,
+    )
+    if settings.use_target_prediction:
+        node.subscribe("tracking/target", st.on_target, policy="all", on_restart=st.restart_target)
+        node.subscribe("sensors/odom", st.on_odometry, policy="all", on_restart=st.restart_odometry)
+    st.notes()
+    node.every(settings.health_period_s, st.notes, name="notes")
+    node.log.info("detector %s, criterion 3 %s", st.detector.name, settings.use_target_prediction)
+    return st.predictor
 
 
 def main(argv: list[str] | None = None) -> int:

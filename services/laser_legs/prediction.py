@@ -22,8 +22,8 @@ scan k:
    arrive after its scan). When odometry has been seen but does not cover both stamps, no
    prediction is made; when none has ever been seen (a robot or recording without odometry),
    the robot is taken as still;
-4. base -> laser frame: ``q = R(-yaw_l) (p1 - t_l)`` with the laser's pose in the base frame,
-   unless the target already names the scan's frame.
+4. base -> laser frame: ``q = R(-yaw_l) (p1 - t_l)`` with the laser's pose in the base frame
+   (the robot's ``laser_mount`` setting).
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ class OdometryBuffer:
 class TargetPredictor:
     """Keeps the newest target (and odometry); predicts its position in a scan's laser frame.
 
-    ``laser_pose`` is the laser's (x, y, yaw) in the base frame.
+    ``laser_pose`` is the laser's (x_m, y_m, yaw_rad) in the base frame.
     """
 
     USABLE = ("tracking",)  # not "coasting": see the module docstring
@@ -133,17 +133,14 @@ class TargetPredictor:
         """``t`` is stamped at or before ``scan``, at most max_age_s before it."""
         return 0 <= scan.stamp_ns - t.stamp_ns <= self.max_age_ns
 
-    def _in_scan_frame(
-        self, t: TrackState, scan: LaserScan, px: float, py: float
-    ) -> tuple[float, float]:
-        """(px, py) of ``t``'s base frame in ``scan``'s laser frame (step 4 of the module
-        doc; unchanged when ``t`` already names the scan's frame)."""
-        if t.frame_id != scan.frame_id or not t.frame_id:
-            lx, ly, lyaw = self.laser_pose
-            c, s = math.cos(lyaw), math.sin(lyaw)
-            dx, dy = px - lx, py - ly
-            px, py = c * dx + s * dy, -s * dx + c * dy
-        return px, py
+    def _in_scan_frame(self, px: float, py: float) -> tuple[float, float]:
+        """(px, py) of the base frame in the scan's laser frame (step 4 of the module doc)."""
+        lx, ly, lyaw = self.laser_pose
+        if (lx, ly, lyaw) == (0.0, 0.0, 0.0):
+            return px, py
+        c, s = math.cos(lyaw), math.sin(lyaw)
+        dx, dy = px - lx, py - ly
+        return c * dx + s * dy, -s * dx + c * dy
 
     def predict(self, scan: LaserScan) -> Prediction:
         """The target's predicted (x, y) in ``scan``'s frame, or None (then no gating)."""
@@ -171,7 +168,7 @@ class TargetPredictor:
             c1, s1 = math.cos(p1[2]), math.sin(p1[2])
             tx, ty = p0[0] - p1[0], p0[1] - p1[1]
             px, py = c * px - s * py + c1 * tx + s1 * ty, s * px + c * py - s1 * tx + c1 * ty
-        px, py = self._in_scan_frame(t, scan, px, py)
+        px, py = self._in_scan_frame(px, py)
         if not (math.isfinite(px) and math.isfinite(py)):
             self.skipped += 1
             return None

@@ -4,6 +4,7 @@ A compose file is YAML, validated strictly (an unknown key is an error naming it
 
     name: sim
     robot: robot
+    laser_mount: {x_m: 0.3, y_m: 0, yaw_deg: 0}   # where the laser sits (every service)
     preset: thesis                 # thesis | bellotto | livingston | ristic | zhuang
     zenoh: {mode: peer}            # defaults for every service
     hosts:                         # optional: per-machine zenoh settings
@@ -16,9 +17,9 @@ A compose file is YAML, validated strictly (an unknown key is an error naming it
       tracker:    {restart: always}
     security: {certs: certs}       # optional: TLS, passwords, access rules (security.py)
 
-Settings of a service are merged, lowest first: the preset's choices for it, the file's
-``zenoh``, its host's ``zenoh``, what the ``security`` section gives it (security.py), then
-the service's own ``settings``.
+Settings of a service are merged, lowest first: the file's ``robot`` and ``laser_mount``, the
+preset's choices for it, the file's ``zenoh``, its host's ``zenoh``, what the ``security``
+section gives it (security.py), then the service's own ``settings``.
 """
 
 from __future__ import annotations
@@ -110,6 +111,9 @@ class RouterSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
 class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     name: str = "followbot"
     robot: _NAME = "robot"
+    laser_mount: dict[str, Any] = {}
+    """The laser's pose on the robot ({x_m, y_m, yaw_deg}), given to every service (each
+    checks it: services/runtime/mount.py); empty: the laser frame is the base frame."""
     preset: Literal["thesis", "bellotto", "livingston", "ristic", "zhuang"] | None = None
     zenoh: dict[str, Any] = {}
     hosts: dict[_NAME, HostSpec] = {}
@@ -205,6 +209,8 @@ def service_settings(compose: Compose, name: str) -> dict[str, Any]:
     spec = compose.services[name]
     service = spec.service or name
     out: dict[str, Any] = {"robot": compose.robot}
+    if compose.laser_mount:
+        out["laser_mount"] = dict(compose.laser_mount)
     if compose.preset:
         _merge(out, dict(PRESETS[compose.preset].get(service, {})))
     _merge(out, {"zenoh": dict(compose.zenoh)} if compose.zenoh else {})

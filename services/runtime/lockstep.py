@@ -128,7 +128,12 @@ class HeldInputs(Generic[M]):
         """Messages that could not be processed at once."""
         self.timeouts = 0
         """Messages processed after ``wait_s`` without what they waited for."""
-        node.every(0.005, self._check, name=f"held_{name}")
+        if wait_s > 0:  # nothing is ever held without a wait
+            node.every(0.005, self._check, name=f"held_{name}")
+
+    def clear(self) -> None:
+        """Forget the held messages (the source restarted: they belong to its old clock)."""
+        self._held.clear()
 
     def offer(self, message: M) -> None:
         if self._held or not self._ready(message):

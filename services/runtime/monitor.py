@@ -45,7 +45,9 @@ OWN_CLOCK_NS = 3600 * 1_000_000_000
 
 class MonitorSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     topics: list[str] = msgspec.field(default_factory=lambda: ["sensors/scan"])
+    """Topics to watch, under followbot/<robot>/ (docs/messages.md lists them)."""
     report_period_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    """Seconds between two log lines per topic (and two rewrites of ``summary``)."""
     summary: str | None = None
     """Write a JSON summary here when stopping."""
 

@@ -23,6 +23,7 @@ import msgspec
 import yaml
 
 from .clock import ClockSettings
+from .mount import LaserMount
 from .security import AccessSettings, AuthSettings, TlsSettings
 
 __all__ = [
@@ -57,11 +58,18 @@ class ZenohSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """
 
     mode: Literal["peer", "client", "router"] = "peer"
+    """Zenoh session mode: ``peer`` talks to other peers directly, ``client`` only through
+    the routers it connects to, ``router`` routes for others (the ``router`` service)."""
     connect: list[str] = []
+    """Endpoints to connect to, e.g. ``tcp/192.168.1.10:7447``; empty with ``listen`` empty
+    means the embedded loopback default (docs/runtime.md)."""
     listen: list[str] = []
+    """Endpoints to listen on, e.g. ``tcp/192.168.1.10:7447``; empty: loopback only."""
     config: str | None = None
     """A zenoh JSON5 configuration file, applied first; the fields here override it."""
     multicast_scouting: bool = False
+    """Discover peers by UDP multicast on the local network; off by default (the embedded
+    default finds peers on loopback, and across machines endpoints are named)."""
     shared_memory: bool = False
     """Zenoh shared memory between processes of one host. Faster for images, but each
     publishing process leaves ~18 MiB of *.zenoh files in /dev/shm, so it is off by default."""
@@ -91,9 +99,15 @@ class NodeSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """Robot name: every key lives under followbot/<robot>/ (letters, digits, '_', '-')."""
     zenoh: ZenohSettings = msgspec.field(default_factory=ZenohSettings)
     health_period_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
+    """Seconds between two health messages of this process (followbot/<robot>/health/...)."""
     clock: ClockSettings = msgspec.field(default_factory=ClockSettings)
     """How the stamps of received messages are judged (docs/runtime.md, "Clocks")."""
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+    """Lowest level of log line written to stderr."""
+    laser_mount: LaserMount = LaserMount()
+    """Where the laser sits on the robot: {x_m, y_m, yaw_deg} in the base frame (REP-103; one
+    value for the whole robot, written once at the top of a compose or group settings file:
+    docs/robot.md). Candidates are turned from the laser frame into the base frame with it."""
 
     def __post_init__(self) -> None:
         from followbot.schemas import Keys
@@ -133,7 +147,11 @@ def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> ty
             spec.append((f.name, f.type, msgspec.field(default_factory=f.default_factory)))
         else:
             spec.append((f.name, f.type, f.default))
-    retired = {"retired_settings": dict(getattr(core, "retired_settings", None) or {})}
+    retired = {
+        "retired_settings": dict(getattr(core, "retired_settings", None) or {}),
+        # where the fields are declared (and documented): followbot settings reads it
+        "core_settings": core,
+    }
     return msgspec.defstruct(
         name,
         spec,

@@ -121,10 +121,11 @@ class CameraModel:
         self, robot_pose: tuple[float, float, float], pan_rad: float
     ) -> tuple[float, float, float]:
         x, y, yaw = robot_pose
+        mx, my = self.spec.mount_x_m, self.spec.mount_y_m  # the mount, in the base frame
         return (
-            x + self.spec.mount_x_m * math.cos(yaw),
-            y + self.spec.mount_x_m * math.sin(yaw),
-            yaw + pan_rad,
+            x + mx * math.cos(yaw) - my * math.sin(yaw),
+            y + mx * math.sin(yaw) + my * math.cos(yaw),
+            yaw + math.radians(self.spec.mount_yaw_deg) + pan_rad,
         )
 
     def to_camera(self, cam: tuple[float, float, float], pts: np.ndarray) -> np.ndarray:

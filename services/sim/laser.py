@@ -17,6 +17,24 @@ say which person a beam saw. Shapes beyond the maximum range are culled first.
 The measurement model then adds Gaussian range noise (thesis 5.1, SICK LMS200: 15 mm), drops
 beams (NaN: no measurement) and inserts spurious short returns (uniform between the minimum
 range and the true range). A beam that hits nothing within range reads +inf (REP-117).
+The ``measured`` model (LaserSpec ``model: measured``, parameters in ``MeasuredLaserSpec``,
+values and their sources in docs/realism.md) reproduces what real scanners do instead:
+
+* range noise with std ``noise_at_zero_m + noise_per_m * r``, ranges rounded to
+  ``range_resolution_m``;
+* leg dropouts correlated in time and per person: each leg is a two-state Markov chain
+  (in a dropout a share ``leg_dropout_prob`` of scans, ``leg_dropout_scans`` long on
+  average), and a person wears dark trousers (drawn once) with ``dark_trousers_prob``; a beam
+  on a leg in a dropout or on dark trousers returns only with ``leg_dropout_return_prob`` or
+  ``dark_return_prob``, so one leg can vanish while the other is seen;
+* at a foreground edge (neighbouring true ranges ``edge_min_jump_m`` apart), the background
+  beam next to the edge is a mixed pixel (``mixed_pixel_prob``: a range drawn uniformly
+  between the edge and the background) or reads no return (``edge_invalid_prob``);
+* scattered invalid beams (``invalid_prob``) and duplicated beams (``duplicate_prob``: a
+  beam repeats its predecessor's reading).
+
+No return reads NaN, nothing within ``range_max_m`` reads +inf.
+
 The scan is taken at one instant: the beams of a real scanner are spread over the scan time,
 which at 0.75 m/s and 13 ms per sweep moves the robot 10 mm -- below the range noise.
 """
@@ -185,6 +203,8 @@ class LaserModel:
         self.n_beams = int(n)
         self.angles_rad = self.angle_min_rad + inc * np.arange(self.n_beams, dtype=np.float64)
         self.period_s = 1.0 / spec.rate_hz
+        self._dropped: np.ndarray | None = None  # measured model: legs in a dropout
+        self._dark = np.zeros(0, dtype=bool)  # measured model: legs in dark trousers
 
     def cast(
         self,
@@ -194,11 +214,12 @@ class LaserModel:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free ranges and hit indices from the robot pose (x, y, yaw) in the world."""
         x, y, yaw = pose
-        ox = x + self.spec.mount_x_m * math.cos(yaw)
-        oy = y + self.spec.mount_x_m * math.sin(yaw)
+        mx, my = self.spec.mount_x_m, self.spec.mount_y_m  # the mount, in the base frame
+        ox = x + mx * math.cos(yaw) - my * math.sin(yaw)
+        oy = y + mx * math.sin(yaw) + my * math.cos(yaw)
         return cast_rays(
             (ox, oy),
-            self.angle_min_rad + yaw,
+            self.angle_min_rad + yaw + math.radians(self.spec.mount_yaw_deg),
             self.angle_increment_rad,
             self.n_beams,
             segments,
@@ -206,12 +227,24 @@ class LaserModel:
             self.spec.range_max_m,
         )
 
-    def corrupt(self, true_ranges: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def corrupt(
+        self,
+        true_ranges: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        hit: np.ndarray | None = None,
+        first_leg: int = 0,
+        n_legs: int = 0,
+    ) -> np.ndarray:
         """Apply the measurement model; returns float32 ranges for the wire.
 
-        The same number of random draws is made whatever the scene, so the noise stream does
-        not depend on what the beams hit.
+        ``hit`` (from :meth:`cast`) with ``first_leg`` and ``n_legs`` says which beams hit a
+        leg: shape indices ``first_leg + 2 k + j`` are leg j of person k (the measured model's
+        leg dropouts; the ideal model ignores them). The same number of random draws is made
+        whatever the scene, so the noise stream does not depend on what the beams hit.
         """
+        if self.spec.model == "measured":
+            return self._corrupt_measured(true_ranges, rng, hit, first_leg, n_legs)
         s = self.spec
         n = true_ranges.shape[0]
         noise = rng.normal(0.0, 1.0, n) * s.range_noise_m
@@ -226,6 +259,69 @@ class LaserModel:
         r = np.where(r > s.range_max_m, np.inf, r)
         r = np.where(r < s.range_min_m, s.range_min_m, r)
         r = np.where(drop, np.nan, r)
+        return r.astype(np.float32)
+
+    def _leg_returns(self, rng: np.random.Generator, n_legs: int) -> np.ndarray:
+        """Per leg, the probability that a beam on it returns this scan (module doc)."""
+        m = self.spec.measured
+        if self._dropped is None or self._dropped.shape[0] != n_legs:
+            # first scan: each leg starts in its chain's stationary state; dark trousers are
+            # drawn per person, the same for both legs
+            self._dropped = rng.random(n_legs) < m.leg_dropout_prob
+            dark = rng.random((n_legs + 1) // 2) < m.dark_trousers_prob
+            self._dark = np.repeat(dark, 2)[:n_legs]
+        leave = 1.0 / m.leg_dropout_scans
+        p = m.leg_dropout_prob
+        enter = min(1.0, p * leave / (1.0 - p)) if p < 1.0 else 1.0
+        u = rng.random(n_legs)
+        self._dropped = np.where(self._dropped, u >= leave, u < enter)
+        ret = np.where(self._dark, m.dark_return_prob, 1.0)
+        return np.where(self._dropped, np.minimum(ret, m.leg_dropout_return_prob), ret)
+
+    def _corrupt_measured(
+        self,
+        true: np.ndarray,
+        rng: np.random.Generator,
+        hit: np.ndarray | None,
+        first_leg: int,
+        n_legs: int,
+    ) -> np.ndarray:
+        s, m = self.spec, self.spec.measured
+        n = true.shape[0]
+        leg_ret = self._leg_returns(rng, n_legs)
+        gauss = rng.normal(0.0, 1.0, n)
+        u_edge, u_mix, u_inv, u_dup, u_leg = rng.random((5, n))
+        finite = np.isfinite(true)
+        r = true.copy()
+        # mixed pixels: a background beam beside a foreground edge (either side)
+        far = np.where(finite, true, np.inf)
+        for bg, fg in ((slice(1, None), slice(None, -1)), (slice(None, -1), slice(1, None))):
+            with np.errstate(invalid="ignore"):  # inf - inf: both beyond range, no edge
+                edge = far[bg] - far[fg] > m.edge_min_jump_m
+            sub = r[bg]
+            mixed = edge & (u_edge[bg] < m.mixed_pixel_prob) & np.isfinite(far[bg])
+            gone = edge & (u_edge[bg] >= m.mixed_pixel_prob)
+            gone &= u_edge[bg] < m.mixed_pixel_prob + m.edge_invalid_prob
+            with np.errstate(invalid="ignore"):
+                lerp = far[fg] + u_mix[bg] * (far[bg] - far[fg])
+            sub[:] = np.where(mixed, lerp, np.where(gone, np.nan, sub))
+        r = r + gauss * (m.noise_at_zero_m + m.noise_per_m * np.where(np.isfinite(r), r, 0.0))
+        invalid = u_inv < m.invalid_prob
+        if hit is not None and n_legs:
+            leg = hit - first_leg
+            on_leg = (leg >= 0) & (leg < n_legs)
+            p = np.where(on_leg, leg_ret[np.clip(leg, 0, n_legs - 1)], 1.0)
+            invalid |= u_leg >= p
+        r = np.where(invalid, np.nan, r)
+        if m.range_resolution_m > 0:
+            r = np.round(r / m.range_resolution_m) * m.range_resolution_m
+        # duplicated beams: a beam repeats the reading of the beam before it (one beam back,
+        # so a duplicate never carries a reading across several beams)
+        dup = np.flatnonzero(u_dup[1:] < m.duplicate_prob) + 1
+        r[dup] = r[dup - 1].copy()
+        with np.errstate(invalid="ignore"):
+            r = np.where(r > s.range_max_m, np.inf, r)
+            r = np.where(r < s.range_min_m, np.nan, r)
         return r.astype(np.float32)
 
     def to_message(self, ranges: np.ndarray, *, stamp_ns: int, seq: int) -> LaserScan:

@@ -99,12 +99,16 @@ class SimSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     duration_s: Annotated[float, msgspec.Meta(gt=0, le=1e6)] | None = None
     """Stop after this much sim time (default: the scenario's duration_s)."""
     mode: Literal["realtime", "lockstep"] = "realtime"
+    """The clock: ``realtime`` follows the wall clock (times ``rate``); ``lockstep`` waits
+    for the stages' answers to each scan (see "Clocks" above, docs/runtime.md)."""
     rate: Annotated[float, msgspec.Meta(gt=0, le=1000)] = 1.0
     """Real time: sim seconds per wall second."""
     publish_images: bool = True
+    """Publish sensors/image; false: laser, odometry and truth only (no camera, faster)."""
     jpeg: bool = False
     """Send images as JPEG (worth it only across a slow link: ~0.5 ms each way)."""
     jpeg_quality: Annotated[int, msgspec.Meta(ge=1, le=100)] = 90
+    """With ``jpeg``: the JPEG quality, 1 (smallest) to 100 (best)."""
     stages: dict[str, list[str]] = msgspec.field(
         default_factory=lambda: {k: list(v) for k, v in DEFAULT_STAGES.items()}
     )
@@ -116,6 +120,8 @@ class SimSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     wait_for_subscribers: bool = False
     """Hold the first tick until sensors/scan has a subscriber (at most start_timeout_s)."""
     start_timeout_s: Annotated[float, msgspec.Meta(ge=0, le=3600)] = 10.0
+    """Longest wait (wall s) for ``wait_for_stages`` / ``wait_for_subscribers``; then the
+    first tick goes out anyway, with a warning."""
     settle_s: Annotated[float, msgspec.Meta(ge=0, le=60)] = 0.2
     """Wait this long after the start conditions hold, before the first tick."""
 
@@ -482,11 +488,24 @@ class SimRunner:
 
 def check(settings: SimSettings) -> Scenario:
     """Load and validate the scenario (a ValueError with the scenario's own error), before any
-    network is opened: at start, and for ``--print-settings`` / ``followbot up --check``."""
+    network is opened: at start, and for ``--print-settings`` / ``followbot up --check``.
+
+    The scenario's laser must sit where the robot's ``laser_mount`` setting says, the one value
+    every stage reads: a simulated laser elsewhere would feed the stages scans they turn into
+    the base frame wrongly."""
     try:
-        return load_scenario_setting(settings.scenario)
+        scenario = load_scenario_setting(settings.scenario)
     except ScenarioError as exc:
         raise ValueError(f"scenario: {exc}") from None
+    mount = scenario.laser.mount()
+    if mount != settings.laser_mount:
+        raise ValueError(
+            f"scenario {scenario.name}: its laser sits at {mount.describe()}, but laser_mount "
+            f"says {settings.laser_mount.describe()}; set laser_mount: {{x_m: {mount.x_m}, "
+            f"y_m: {mount.y_m}, yaw_deg: {mount.yaw_deg}}} for every service (the top of a "
+            "compose file; followbot eval does it itself)"
+        )
+    return scenario
 
 
 def setup(node: Node, settings: SimSettings) -> SimRunner:

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from followbot.geometry import wrap_angle
+from followbot.services.common.geometry import wrap_angle
 
 from .scenario import ArcStep, PauseStep, PersonSpec, TurnStep, WalkStep
 

@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from followbot.geometry import wrap_angle
+from followbot.services.common.geometry import wrap_angle
 
 from .scenario import RobotSpec
 from .world import StaticWorld

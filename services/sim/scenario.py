@@ -24,6 +24,8 @@ from typing import Annotated, Literal
 import msgspec
 import yaml
 
+from followbot.services.runtime.mount import LaserMount
+
 __all__ = [
     "ArcStep",
     "BoxSpec",
@@ -32,6 +34,7 @@ __all__ = [
     "GaitSpec",
     "LaserSpec",
     "LightingKey",
+    "MeasuredLaserSpec",
     "OdometrySpec",
     "PauseStep",
     "PersonSpec",
@@ -213,6 +216,39 @@ class RobotSpec(_Spec):
     odometry: OdometrySpec = msgspec.field(default_factory=OdometrySpec)
 
 
+class MeasuredLaserSpec(_Spec):
+    """The ``measured`` laser model's parameters; each default was measured on real scans with
+    ``followbot realstats`` (docs/realism.md says where and how)."""
+
+    noise_at_zero_m: NonNeg = 0.003
+    """Range noise std at 0 m (docs/realism.md, "Range noise")."""
+    noise_per_m: NonNeg = 0.0005
+    """Added range noise std per metre of range (growing with range)."""
+    range_resolution_m: NonNeg = 0.001
+    """Ranges are rounded to this (the scanners report millimetres)."""
+    duplicate_prob: Prob = 0.33
+    """A beam repeats the previous beam's range (docs/realism.md, "Duplicated beams")."""
+    mixed_pixel_prob: Prob = 0.22
+    """The beam just past a foreground edge reads a range between the edge and the background."""
+    edge_invalid_prob: Prob = 0.15
+    """The beam just past a foreground edge reads no return."""
+    edge_min_jump_m: Pos = 0.3
+    """Range step between neighbouring beams that makes a foreground edge."""
+    invalid_prob: Prob = 0.01
+    """A beam on any surface reads no return (NaN)."""
+    leg_dropout_prob: Prob = 0.25
+    """Share of scans a leg spends in a dropout (correlated in time per leg)."""
+    leg_dropout_scans: Annotated[float, msgspec.Meta(ge=1.0, le=1e4)] = 5.0
+    """Mean length of a leg's dropout, in scans."""
+    leg_dropout_return_prob: Prob = 0.0
+    """During a dropout, each of the leg's beams still returns with this probability (0: the
+    leg vanishes)."""
+    dark_trousers_prob: Prob = 0.1
+    """A person wears dark trousers (drawn once per person): few or no returns from the legs."""
+    dark_return_prob: Prob = 0.5
+    """Each beam on a dark-trousered leg returns with this probability."""
+
+
 class LaserSpec(_Spec):
     # thesis 5.1 (SICK LMS200): 100 deg field of view, 0.5 deg resolution, 15 mm noise
     fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=360.0)] = 100.0
@@ -231,6 +267,21 @@ class LaserSpec(_Spec):
     """Laser position ahead of the base origin."""
     min_visible_beams: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 3
     """Beams on a person's legs for truth to call the person visible to the laser."""
+    # the laser's mount in the base frame, with mount_x_m (every stage gets it: laser_mount)
+    mount_y_m: Coord = 0.0
+    """Laser position left of the base origin."""
+    mount_yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    """The laser turned counter-clockwise from the base's heading."""
+
+    model: Literal["ideal", "measured"] = "ideal"
+    """ideal: Gaussian noise (range_noise_m), iid dropout_prob and spurious_prob. measured:
+    the real scanners' faults (``measured``; docs/realism.md); range_noise_m, dropout_prob
+    and spurious_prob are then not used."""
+    measured: MeasuredLaserSpec = msgspec.field(default_factory=MeasuredLaserSpec)
+
+    def mount(self) -> LaserMount:
+        """The laser's pose in the base frame, as the stages' ``laser_mount`` setting."""
+        return LaserMount(x_m=self.mount_x_m, y_m=self.mount_y_m, yaw_deg=self.mount_yaw_deg)
 
 
 class CameraSpec(_Spec):
@@ -244,6 +295,10 @@ class CameraSpec(_Spec):
     noise_std: Annotated[float, msgspec.Meta(ge=0.0, le=64.0)] = 3.0
     """Sensor noise, standard deviation in grey levels."""
     max_range_m: Pos = 12.0
+    mount_y_m: Coord = 0.0
+    """Camera (pan axis) position left of the base origin; ``mount_x_m`` ahead of it."""
+    mount_yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    """The camera's heading at pan 0, counter-clockwise from the base's heading."""
 
 
 class LightingKey(_Spec):

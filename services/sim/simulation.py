@@ -41,8 +41,8 @@ import math
 
 import numpy as np
 
-from followbot.geometry import wrap_angle
 from followbot.schemas import GroundTruth, Image, LaserScan, Message, Odometry, PersonTruth
+from followbot.services.common.geometry import wrap_angle
 
 from .camera import CameraModel
 from .laser import LaserModel
@@ -277,8 +277,14 @@ class Simulation:
         return seq
 
     def scan(self) -> LaserScan:
-        true_ranges, _ = self._true_cast()
-        ranges = self.laser.corrupt(true_ranges, self._laser_rng)
+        true_ranges, hit = self._true_cast()
+        ranges = self.laser.corrupt(
+            true_ranges,
+            self._laser_rng,
+            hit=hit,
+            first_leg=self._laser_segments.shape[0] + self._laser_circles.shape[0],
+            n_legs=2 * len(self.people),
+        )
         return self.laser.to_message(ranges, stamp_ns=self.t_ns, seq=self._next_seq("scan"))
 
     def image_pixels(self) -> np.ndarray:

@@ -36,24 +36,38 @@ _MAX_BACKLOG_S = 0.05
 
 class SyntheticSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     scan_rate_hz: _Rate = 40.0
+    """Laser scans published per second (wall clock); 0: none."""
     beams: Annotated[int, msgspec.Meta(ge=1, le=10_000)] = 720
+    """Beams per scan, spread evenly over fov_deg."""
     fov_deg: Annotated[float, msgspec.Meta(gt=0, le=360)] = 270.0
+    """The laser's field of view (deg), centred straight ahead."""
     max_range_m: Annotated[float, msgspec.Meta(gt=0)] = 8.0
+    """Returns beyond this (m) are no return (inf); also the scan's range_max_m."""
     noise_m: Annotated[float, msgspec.Meta(ge=0)] = 0.015
+    """Standard deviation (m) of the Gaussian noise added to every range."""
     room_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 4.0
+    """Radius (m) of the round room around the robot: the wall every beam not on a leg hits."""
     walk_radius_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
+    """Radius (m) of the circle the walkers walk round the robot."""
     walk_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.6
+    """The walkers' speed along their circle (m/s)."""
     people: Annotated[int, msgspec.Meta(ge=0, le=16)] = 1
     """Walkers on the circle, evenly spaced, all walking the same way (the image shows the
     first)."""
     odom_rate_hz: _Rate = 50.0
+    """Odometry messages per second (the robot stands still at the origin); 0: none."""
     image_rate_hz: _Rate = 0.0
+    """Camera images per second; 0: none."""
     image_width: Annotated[int, msgspec.Meta(ge=8, le=4096)] = 320
+    """Image width (px)."""
     image_height: Annotated[int, msgspec.Meta(ge=8, le=4096)] = 240
+    """Image height (px)."""
     jpeg: bool = False
+    """Send images as JPEG rather than raw BGR."""
     count: Annotated[int, msgspec.Meta(ge=0)] = 0
     """Stop after this many scans (0: run until stopped)."""
     seed: int = 0
+    """Seed of the range noise, so two runs publish the same ranges."""
     wait_for_subscribers_s: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Hold back the first scan until someone subscribes to sensors/scan (at most this long)."""
     reliable: bool = False
@@ -63,6 +77,7 @@ class SyntheticSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     seen), at most start_timeout_s: a subscriber elsewhere (a monitor) must not start the stream
     before the stages that should see all of it are connected."""
     start_timeout_s: Annotated[float, msgspec.Meta(ge=0)] = 10.0
+    """Longest wait (s) for wait_for_stages; then publishing starts anyway, with a warning."""
 
 
 class SyntheticScene:

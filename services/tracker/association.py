@@ -31,6 +31,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from followbot.schemas import PersonCandidates
+from followbot.services.runtime.mount import LaserMount
 
 from .estimators import EstimatorBase, wrap_angle
 from .lifecycle import Track
@@ -116,9 +117,12 @@ class Association:
 class Associator:
     """Gates, units and the assignment rule, for one estimator class."""
 
-    def __init__(self, settings: TrackerSettings, estimator_class: type) -> None:
+    def __init__(
+        self, settings: TrackerSettings, estimator_class: type, mount: LaserMount | None = None
+    ) -> None:
         self.settings = settings
         self._cls = estimator_class
+        self._mount = mount or LaserMount()  # "in front" is seen from where the laser sits
         self._assign = ASSIGNMENTS[settings.association.assignment]
 
     def associate(
@@ -161,6 +165,8 @@ class Associator:
         s = self.settings
         pred = target.position
         centres = a.points[a.starts] if a.starts is not None else a.points
+        if not self._mount.is_identity:
+            pred, centres = self._mount.to_laser(pred)[0], self._mount.to_laser(centres)
         r_pred = float(np.hypot(*pred))
         half = math.atan2(s.occlusion_radius_m, max(r_pred, 1e-6))
         dr = r_pred - np.hypot(centres[:, 0], centres[:, 1])

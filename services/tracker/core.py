@@ -11,7 +11,9 @@ Pure logic on numpy arrays and messages, no Zenoh (the node is ``node.py``). DES
 - report.py -- TrackState and People;
 - estimators/ -- one person's state: the particle filter, the UKF, ...
 
-One step per candidates message (:meth:`Tracker.step`):
+One step per candidates message (:meth:`Tracker.step`), its candidates first turned from the
+laser frame into the base frame (the laser's mount, services/runtime/mount.py), the frame
+odometry moves and every output is in:
 
 1. ego-motion: the robot's pose at the scan's stamp (interpolated odometry); every track and
    the lost target's last position are carried into the new base frame. Without odometry for
@@ -31,7 +33,6 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
-from followbot.geometry import Pose, se2_change, transform_points
 from followbot.schemas import (
     Odometry,
     People,
@@ -40,6 +41,8 @@ from followbot.schemas import (
     TrackState,
     Verification,
 )
+from followbot.services.common.geometry import Pose, se2_change, transform_points
+from followbot.services.runtime.mount import LaserMount, candidates_in_base
 
 from . import report
 from .association import Association, Associator
@@ -78,8 +81,11 @@ class _Rest(msgspec.Struct):
 class Tracker:
     """All people in the laser, one of them the target. Not thread-safe: one loop drives it."""
 
-    def __init__(self, settings: TrackerSettings | None = None) -> None:
+    def __init__(
+        self, settings: TrackerSettings | None = None, mount: LaserMount | None = None
+    ) -> None:
         self.settings = s = settings or TrackerSettings()
+        self.mount = mount = mount or LaserMount()
         self._make = estimator_factory(s.estimator, s.estimator_settings)
         self._cls = self._make.estimator_class  # its batch steps (update_all, ...)
         self.estimator_name = s.estimator
@@ -88,9 +94,9 @@ class Tracker:
         )
         self._now = ScanTime()
         self._tracks = Tracks(s, self._make, self._now)
-        self.search = Search(s, self._tracks, self._now)
+        self.search = Search(s, self._tracks, self._now, mount)
         self.identity = Identity(s, self._tracks, self.search, self.odometry, self._now)
-        self._associator = Associator(s, self._cls)
+        self._associator = Associator(s, self._cls, mount)
         self._last_stamp: int | None = None
         self._last_pose: Pose | None = None
         self.steps_without_odometry = 0
@@ -136,7 +142,7 @@ class Tracker:
         """The candidates' source restarted with a new clock: start afresh (every track, the
         target and the history go; whether vision is there stays)."""
         alive = self.vision_alive
-        self.__init__(self.settings)
+        self.__init__(self.settings, self.mount)
         self.set_vision_alive(alive)
 
     def restart_odometry(self) -> None:
@@ -177,6 +183,7 @@ class Tracker:
         doing it all at once."""
         if self._rest is not None:
             self.step_rest()
+        candidates = candidates_in_base(candidates, self.mount)
         stamp, frame_id = candidates.stamp_ns, candidates.frame_id
         if self._last_stamp is not None and stamp <= self._last_stamp:
             # a repeated or older scan: the state cannot go back; answer without changing it
@@ -264,6 +271,9 @@ class Tracker:
         for t in self._tracks.delete_lost():
             if t.id == self.target_id:
                 self.identity.lose_target(t)
+            # a track its estimator gave up on even as it took a candidate (a UKF whose spread
+            # outgrew its bound over a long gap) is gone: nobody may choose it as the target
+            matched.pop(t.id, None)
         return matched
 
     def step_rest(self) -> People:

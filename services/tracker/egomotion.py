@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from followbot.geometry import Pose
 from followbot.schemas import Odometry
+from followbot.services.common.geometry import Pose
 
 from .estimators import wrap_angle
 

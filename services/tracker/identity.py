@@ -39,8 +39,8 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from followbot.geometry import Pose, se2_change, transform_points
 from followbot.schemas import TargetModel, Verification, VerifiedCandidate
+from followbot.services.common.geometry import Pose, se2_change, transform_points
 
 from .egomotion import OdometryBuffer
 from .lifecycle import ScanTime, Track, Tracks

@@ -22,8 +22,8 @@ from collections import deque
 import msgspec
 import numpy as np
 
-from followbot.geometry import Pose
-from followbot.geometry import rotation as _rot
+from followbot.services.common.geometry import Pose
+from followbot.services.common.geometry import rotation as _rot
 
 from .estimators import Estimator, EstimatorFactory
 from .settings import TrackerSettings

@@ -19,6 +19,7 @@ import msgspec
 
 from followbot.schemas import Odometry, PersonCandidates, TargetModel, TrackState, Verification
 from followbot.services.runtime.lockstep import HeldInputs
+from followbot.services.runtime.mount import BASE_FRAME
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.plugins import UnknownPlugin
 from followbot.services.runtime.service import service_main
@@ -127,7 +128,7 @@ class _TrackerNode:
         self.lockstep = _Lockstep(settings)
         self.held: HeldInputs | None = None
         # the newest scan stepped: its stamp, when (wall clock) and its frame
-        self.clock = {"stamp": -1, "at": time.monotonic(), "frame": "base_link", "out_of_order": 0}
+        self.clock = {"stamp": -1, "at": time.monotonic(), "frame": BASE_FRAME, "out_of_order": 0}
 
     def step(self, msg: PersonCandidates) -> None:
         tracker, clock = self.tracker, self.clock
@@ -135,7 +136,7 @@ class _TrackerNode:
             tracker.set_target_model(model)
         self.lockstep.stepped.append(msg.stamp_ns)
         if msg.stamp_ns > clock["stamp"]:
-            clock.update(stamp=msg.stamp_ns, at=time.monotonic(), frame=msg.frame_id)
+            clock.update(stamp=msg.stamp_ns, at=time.monotonic())
         target = tracker.step_target(msg)
         self._note_order(target)
         self.target_pub.put(target)  # the controller's input first, then the bookkeeping
@@ -213,7 +214,7 @@ class _TrackerNode:
 
 def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
     try:
-        tracker = Tracker(core_settings(settings))
+        tracker = Tracker(core_settings(settings), settings.laser_mount)
     except UnknownPlugin as exc:
         raise ValueError(str(exc)) from None
     t = _TrackerNode(node, settings, tracker)
@@ -240,10 +241,11 @@ def setup(node: Node, settings: TrackerNodeSettings) -> Tracker:
     )
     node.watch_alive(settings.vision_service, t.on_vision_alive)
     node.log.info(
-        "tracker: estimator=%s vision_lag_scans=%d acquire=%s",
+        "tracker: estimator=%s vision_lag_scans=%d acquire=%s laser mount %s",
         settings.estimator,
         settings.vision_lag_scans,
         settings.acquire,
+        settings.laser_mount.describe(),
     )
     return tracker
 

@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from followbot.schemas import Horizon
+from followbot.services.runtime.mount import LaserMount
 
 from .lifecycle import ScanTime, Track, Tracks
 from .settings import TrackerSettings
@@ -128,8 +129,12 @@ def _nearest_clear_bin(
 class Search:
     """The lost target's last sighting, the look gate, and whom the camera looks at."""
 
-    def __init__(self, settings: TrackerSettings, tracks: Tracks, now: ScanTime) -> None:
+    def __init__(
+        self, settings: TrackerSettings, tracks: Tracks, now: ScanTime, mount: LaserMount | None
+    ) -> None:
         self.settings = settings
+        self.mount = mount or LaserMount()
+        """The laser's pose: the horizon and the reach are the laser's, seen from where it sits."""
         self._tracks = tracks
         self._now = now
         self.lost_at: np.ndarray | None = None
@@ -167,9 +172,12 @@ class Search:
         where = self.lost_at + self._lost_v * min(elapsed, self.settings.search.predict_s)
         limit = self.reach if self.settings.search.within_reach else None
         if limit is not None:  # beyond the detector's reach: where it would come back into it
-            r = float(np.hypot(*where))
+            mount = self.mount
+            seen = where if mount.is_identity else mount.to_laser(where)[0]
+            r = float(np.hypot(*seen))
             if r > limit:
-                where = where * (limit / r)
+                seen = seen * (limit / r)
+                where = seen if mount.is_identity else mount.to_base(seen)[0]
         return where
 
     # ------------------------------------------------------------------ gates
@@ -352,9 +360,12 @@ class Search:
             return None
         where = self.predicted()
         if where is not None and s.search.occluder_edge and self.horizon is not None:
-            edge = occluder_edge(
-                where, self._lost_v, self.horizon, s.occlusion_margin_m, s.occlusion_radius_m
-            )
-            if edge is not None:
-                where = edge  # hidden there: where it comes out of hiding
+            m = self.mount
+            point, v = where, self._lost_v  # the horizon is the laser's: in its frame
+            if not m.is_identity:
+                point = m.to_laser(where)[0]
+                v = m.to_laser(self._lost_v)[0] - m.to_laser([0.0, 0.0])[0]  # a vector
+            edge = occluder_edge(point, v, self.horizon, s.occlusion_margin_m, s.occlusion_radius_m)
+            if edge is not None:  # hidden there: where it comes out of hiding
+                where = edge if m.is_identity else m.to_base(edge)[0]
         return where

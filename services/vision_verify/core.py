@@ -99,9 +99,10 @@ ViewStatus = Literal["ok", "invalid", "behind", "out_of_view", "too_small", "too
 class Camera(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Intrinsics and extrinsics of one camera (one ``intrinsics_id`` of the Image message).
 
-    The camera sits at (``offset_x_m``, ``offset_y_m``) in the laser frame (its pan axis),
-    ``height_m`` above the floor, looking horizontally along the laser's +x turned by the pan
-    angle the image carries.
+    The camera sits at (``offset_x_m``, ``offset_y_m``) in the base frame (its pan axis; the
+    service turns each scan's candidates from the laser frame into the base frame with the
+    robot's ``laser_mount``), ``height_m`` above the floor, looking horizontally along the
+    base's +x turned by ``yaw_deg`` and by the pan angle the image carries.
     """
 
     width: Annotated[int, msgspec.Meta(ge=16, le=4096)] = 320
@@ -115,7 +116,13 @@ class Camera(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     cy_px: float | None = None
     """Principal point row (default height / 2)."""
     offset_x_m: float = 0.0
+    """Metres ahead of the base's origin."""
     offset_y_m: float = 0.0
+    """Metres left of the base's origin."""
+    yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    """The camera's heading when the image's ``pan_rad`` is 0, counter-clockwise from the
+    base's +x: a fixed camera turned on its mount (0 for a camera whose driver reports its pan
+    from the base's +x, as the Image message asks)."""
     height_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.0
     min_depth_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.3
     """Candidates nearer than this along the optical axis (or behind the camera) are skipped."""
@@ -135,10 +142,11 @@ class Camera(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         return self.height / 2.0 if self.cy_px is None else self.cy_px
 
     def to_camera(self, x_m: np.ndarray, y_m: np.ndarray, pan_rad: float):
-        """Laser-frame points to the camera frame (x_c forward along the optical axis, y_c left)."""
+        """Base-frame points to the camera frame (x_c forward along the optical axis, y_c left)."""
         dx = np.asarray(x_m, dtype=np.float64) - self.offset_x_m
         dy = np.asarray(y_m, dtype=np.float64) - self.offset_y_m
-        c, s = math.cos(pan_rad), math.sin(pan_rad)
+        heading = pan_rad + math.radians(self.yaw_deg)
+        c, s = math.cos(heading), math.sin(heading)
         return c * dx + s * dy, -s * dx + c * dy
 
     def column(self, x_c, y_c):
@@ -190,7 +198,7 @@ def project(
     min_side_px: int = 8,
     max_width_factor: float = 3.0,
 ) -> list[View]:
-    """Rectangles of candidates ``xy_m`` (N x 2, laser frame) in an image taken at ``pan_rad``.
+    """Rectangles of candidates ``xy_m`` (N x 2, base frame) in an image taken at ``pan_rad``.
 
     ``rect_w_px`` x ``rect_h_px`` is the model's rectangle, learnt at depth ``model_depth_m``.
     A rectangle wider than ``max_width_factor`` image widths (a candidate almost at the lens) is

@@ -644,6 +644,12 @@ def _updated(
         ds = _distances(verifier, frame, views, model)
         if not confident(ds, target, max_distance, margin):
             return model
+    update = getattr(verifier, "update", None)
+    if update is not None:  # a verifier that learns from the target and the bystanders
+        learnt = update(frame, views, target, model)
+        if learnt is None:
+            return model
+        return msgspec.structs.replace(model, model_id=model_id, features=learnt)
     seen = verifier.describe(frame, views[target].rect)
     if seen is None:
         return None

@@ -78,22 +78,19 @@ class AcquireSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     max_width_m: float = 1.2
     """A motion rectangle wider than this at the laser fix's depth holds more than one mover."""
     nearer_in_rect_m: float | None = 0.5
-    """Beyond the thesis (nineteenth session, default): refuse a fix when another laser
-    candidate stands inside the motion rectangle's columns this much nearer than the fix --
-    the nearer one hides what lies behind it, so the image's motion is as likely its own
-    (door_corner seed 3: the laser's only "mover" was a door frame's flickering edge 2.9 m
-    away, on the bearing of the target setting off 1.2 m away, and the model was learnt with
-    the edge's position). 76 closed-loop runs: that run is learnt on its target 0.12 s later
-    (RMSE 0.231 -> 0.075 m, tracked 0.75 -> 1.00), the other 75 do not change
-    (docs/tracker_log.md). None: off."""
+    """Beyond the thesis: refuse a fix when another laser candidate stands inside the motion
+    rectangle's columns this much nearer than the fix -- the nearer one hides what lies behind
+    it, so the image's motion is as likely its own (a door frame's flickering edge far behind
+    the target setting off is otherwise taken as the mover; docs/tracker_log.md). None: off."""
     alone_s: float = 0.5
+    """The window (s) in which the mover must have moved alone (see crowd_pairs)."""
     crowd_pairs: int = 2
     """The mover must have moved alone: ``crowd_pairs`` or more scan pairs within the last
     ``alone_s`` that saw two movers, or one mover somewhere else (farther than
     match_radius_m), refuse the fix (one such pair is let through: a leg of a standing person
     half hidden by the mover changes too). Beyond the thesis (which checks one scan pair): two
     people who set off together are seen moving one at a time, as their gaits alternate, and
-    the model went to either of them (thesis_5_2_4_turn_apart with other seeds)."""
+    the model went to either of them."""
 
 
 # --------------------------------------------------------------------------- image

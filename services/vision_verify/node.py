@@ -1,7 +1,8 @@
 """vision_verify: say which laser candidate is the target, by appearance (thesis 3.5, 4.4).
 
 Inputs: sensors/image (latest only), perception/candidates, perception/target_command,
-perception/target_model (models of other workers), sensors/scan (used only while acquiring).
+perception/target_model (models of other workers), sensors/scan (used only while acquiring),
+tracking/target (a verifier that learns online: which candidate the tracker followed).
 Outputs: perception/verification (one per judged scan, naming the scan stamp and the candidate
 positions judged), perception/target_model (also answers queries, so a restarted stage or a
 second worker recovers the model).
@@ -33,11 +34,12 @@ for images, Health.notes for the rest), never fatal.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterable
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import cv2
 import msgspec
@@ -49,9 +51,11 @@ from followbot.schemas import (
     PersonCandidates,
     TargetCommand,
     TargetModel,
+    TrackState,
     Verification,
     VerifiedCandidate,
 )
+from followbot.services.runtime.mount import candidates_in_base
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings
@@ -62,6 +66,7 @@ from .core import (
     ImageFeatures,
     InvalidModel,
     Model,
+    View,
     adapt_features,
     checked_model,
     confident,
@@ -96,14 +101,20 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     reject: bool = True
     """False: always take the most alike candidate (the thesis's rule)."""
     pair_tolerance_s: Annotated[float, msgspec.Meta(ge=0)] = 0.06
+    """A scan's candidates are judged on the image nearest their stamp, if that is within
+    this (s); else the scan waits for one (or is dropped)."""
     max_lag_s: _Pos = 0.5
     """Scans further than this behind the newest one are dropped unjudged."""
     scan_buffer: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 32
+    """At most this many candidates messages wait for their image; beyond, the oldest are
+    dropped unjudged (counted as scan_stale)."""
     answer_every_scan: bool = False
     """Lock-step: publish exactly one verification per candidates message."""
     image_wait_s: _Pos = 0.2
     """Lock-step: how long a scan waits for an image before an empty answer."""
     min_rect_side_px: Annotated[int, msgspec.Meta(ge=2)] = 8
+    """A candidate whose image rectangle (clipped to the image) has a side shorter than this
+    (px) is not judged (too_small): too few pixels for a histogram."""
     max_rect_width_factor: _Pos = 3.0
     """Candidates whose rectangle is wider than this many image widths are skipped."""
     min_visible_fraction: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = 0.5
@@ -114,24 +125,21 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     occlusion_margin_m: Annotated[float, msgspec.Meta(ge=0)] | None = 0.3
     """Beyond the thesis: what the laser sees in front of a candidate. The detector reports
     only people near the target (thesis criterion 3), so a passer-by walking between the
-    camera and the target was no candidate, and its pixels were judged as the target's: in
-    crowd_ten (own seed, 37.4 s) vision rejected the target twice (0.80, 0.85) and dropped it.
+    camera and the target is no candidate, and its pixels would be judged as the target's.
     A leg-like return of the candidates message's ``horizon`` (core.horizon_covers: a narrow
     run standing in front of its neighbours; walls and pillars are not) more than this nearer
     than a candidate stands for a body ``occluder_half_width_m`` either side; what it covers
-    is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only (before
-    the fourteenth session)."""
+    is used as ``occlusion_abstain_fraction`` says. None: candidates' rectangles only."""
     occluder_half_width_m: Annotated[float, msgspec.Meta(ge=0, le=2)] = 0.2
+    """With occlusion_margin_m: the half width (m) of the body a leg-like return in front of
+    a candidate stands for."""
     occlusion_abstain_fraction: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = 0.25
     """With occlusion_margin_m: the whole rectangle is judged as before, and a candidate is
     reported unjudged only when it would be rejected and those returns cover at least this
     share of its columns: a view with someone unreported in front of it is trusted when it
-    matches, not when it rejects (the tracker then counts no rejection). Default since the
-    fourteenth session (docs/tracker_log.md), 76 closed-loop runs: tracked >= 98 % 61 -> 66 (all
-    six crowd_ten seeds 1.00), time on wrong people 1.32 -> 0.60 s, never-re-acquired
-    occlusions 8 -> 5, two-person runs with a switch 3 -> 2, RMSE <= 0.08 m unchanged (68).
-    None: cut the covered columns from the rectangle, as nearer candidates' (min_visible_
-    fraction); measured worse: crowd_ten seed 4 lost its target for good, RMSE <= 0.08 m 66."""
+    matches, not when it rejects (the tracker then counts no rejection). Default chosen by the
+    closed-loop runs of docs/tracker_log.md. None: cut the covered columns from the
+    rectangle, as nearer candidates' (min_visible_fraction; measured worse)."""
     acquire: AcquireSettings = msgspec.field(default_factory=AcquireSettings)
     auto_acquire: bool = False
     """Learn a model on start, without a command (one mover, still robot), when nobody on the
@@ -139,6 +147,8 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     alive (or ``recover_wait_s`` after start) found no model, and is dropped if a model is
     recovered first (docs/vision_verify.md "The target model")."""
     acquire_timeout_s: _Pos = 30.0
+    """An acquisition (an acquire command, or auto_acquire) that has learnt no model after
+    this long (s) gives up, with a warning (counted as acquire_timeout)."""
     models_dir: str = ""
     """Folder of the files that save/load commands name; nothing outside it is read or
     written. "": $XDG_DATA_HOME/followbot/models (~/.local/share/followbot/models). A
@@ -154,6 +164,7 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     query_timeout_s: _Pos = 1.0
     """How long one query waits for answers."""
     query_period_s: _Pos = 1.0
+    """Seconds between two queries for the model while this service has none."""
     model_holder: str = "tracker"
     """The service that keeps the model for a restarted worker (the tracker serves the last
     model it got): once its liveliness is seen, a query it does not answer means it holds
@@ -165,8 +176,24 @@ class VisionVerifySettings(NodeSettings, kw_only=True, forbid_unknown_fields=Tru
     adapt_rate: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
     """Online model update rate per confident match (0: off; e.g. 0.02)."""
     adapt_max_distance: Annotated[float, msgspec.Meta(ge=0)] = 0.4
+    """With adapt_rate: the model is updated only from a chosen candidate at most this
+    distance from it ..."""
     adapt_margin: Annotated[float, msgspec.Meta(ge=0)] = 0.2
+    """... and at least this much nearer than every other candidate."""
     adapt_publish_period_s: _Pos = 5.0
+    """With adapt_rate: an updated model is published (for the model holder) at most this
+    often (s)."""
+    learn_from: Literal["tracker", "confident", "off"] = "tracker"
+    """For a verifier that learns online (``online``): which candidate of a judged scan is the
+    target it learns from, all others in view being bystanders. ``tracker``: the candidate the
+    tracker's state for that scan (tracking/target, status tracking) lies on, within
+    ``learn_gate_m`` and with no other candidate that near; ``confident``: the verifier's own
+    choice when confident (``adapt_max_distance``, ``adapt_margin``); ``off``: never."""
+    learn_gate_m: _Pos = 0.4
+    """``learn_from: tracker``: how near the tracker's target a candidate must lie to be it."""
+    learn_scans: Annotated[int, msgspec.Meta(ge=1, le=64)] = 8
+    """``learn_from: tracker``: judged scans kept waiting for the tracker's state of their
+    stamp (it comes after the verification, which the tracker uses)."""
 
 
 class CommandRefused(ValueError):
@@ -238,6 +265,10 @@ class VisionVerify:
         self.acq_images: list[tuple[int, np.ndarray, float]] = []
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
         self.model_dirty = False
+        # learn_from tracker: judged scans (stamp -> frame, views, model id) awaiting the
+        # tracker's state of the same stamp
+        self.judged: OrderedDict[int, tuple[ImageFeatures, list[View], int]] = OrderedDict()
+        self.learns = getattr(self.verifier, "update", None) is not None
 
         self.pub_verification = node.publisher("perception/verification")
         self.pub_model = node.publisher("perception/target_model", reliable=True, serve_last=True)
@@ -275,6 +306,14 @@ class VisionVerify:
         node.subscribe(
             "sensors/scan", self.on_scan, capacity=16, dispatch="loop", on_restart=self.scans.clear
         )
+        if self.learns and settings.learn_from == "tracker":
+            node.subscribe(
+                "tracking/target",
+                self.on_target,
+                capacity=16,
+                dispatch="loop",
+                on_restart=self.judged.clear,
+            )
         node.every(0.02, self.on_timer, name="vision_timer")
         node.every(settings.adapt_publish_period_s, self.publish_adapted, name="adapt_publish")
         node.every(settings.health_period_s, self.update_notes, name="notes")
@@ -358,6 +397,9 @@ class VisionVerify:
     # ------------------------------------------------------------------ candidates, pairing
 
     def on_candidates(self, msg: PersonCandidates) -> None:
+        # the laser frame of the scan -> the base frame, where the cameras' mounts are given
+        # and where the tracker reads the verification's positions
+        msg = candidates_in_base(msg, self.s.laser_mount)
         had_model = self.model is not None
         if self.builder is not None:
             self.acq_cands[msg.stamp_ns] = msg
@@ -477,12 +519,18 @@ class VisionVerify:
                 self.publish_empty(msg)
             return
         out = []
+        calibrated = getattr(self.verifier, "calibrated", False)  # distance = 1 - probability
         for v, d in zip(j.views, j.distances, strict=True):
             if v.status not in ("ok", "out_of_view"):
                 self.count(f"candidate_{v.status}")
             out.append(
                 VerifiedCandidate(
-                    index=v.index, x_m=v.x_m, y_m=v.y_m, in_view=d is not None, distance=d
+                    index=v.index,
+                    x_m=v.x_m,
+                    y_m=v.y_m,
+                    in_view=d is not None,
+                    distance=d,
+                    probability=None if d is None or not calibrated else max(0.0, 1.0 - d),
                 )
             )
         self.last_judged_ns = max(self.last_judged_ns, msg.stamp_ns)
@@ -500,6 +548,16 @@ class VisionVerify:
             )
         )
         s = self.s
+        if self.learns:
+            if s.learn_from == "tracker":
+                self.judged[msg.stamp_ns] = (frame.features, j.views, model.model_id)
+                while len(self.judged) > s.learn_scans:
+                    self.judged.popitem(last=False)
+            elif s.learn_from == "confident" and confident(
+                j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
+            ):
+                self.learn(frame.features, j.views, j.chosen)
+            return
         if s.adapt_rate > 0 and confident(
             j.distances, j.chosen, s.adapt_max_distance, s.adapt_margin
         ):
@@ -507,6 +565,42 @@ class VisionVerify:
             if seen is not None:
                 model.features = adapt_features(model.features, seen, s.adapt_rate)
                 self.model_dirty = True
+
+    def learn(self, frame: ImageFeatures, views: list[View], target: int) -> None:
+        """Let an online verifier learn ``views[target]`` as the target, the others as
+        bystanders."""
+        learnt = self.verifier.update(frame, views, target, self.model)
+        if learnt is None:
+            self.count("learn_no_view")
+            return
+        # Not republished: a target model on the network makes the tracker take the target
+        # where the model was learnt. A restarted worker starts again from the model as
+        # first learnt; a save command saves what was learnt since.
+        self.model.features = learnt
+        self.count("learnt")
+
+    def on_target(self, state: TrackState) -> None:
+        """The tracker's target at a judged scan: learn which candidate it was."""
+        judged = self.judged.pop(state.stamp_ns, None)
+        if judged is None or self.model is None or state.status != "tracking":
+            return
+        frame, views, model_id = judged
+        if model_id != self.model.model_id:
+            return  # judged with a model since replaced
+        # both in the base frame: candidates are turned into it as they arrive
+        x, y = state.x_m - state.shift_x_m, state.y_m - state.shift_y_m
+        near = [
+            i
+            for i, v in enumerate(views)
+            if math.hypot(v.x_m - x, v.y_m - y) <= self.s.learn_gate_m
+        ]
+        if len(near) != 1:
+            self.count("learn_ambiguous" if near else "learn_target_not_candidate")
+            return
+        if not views[near[0]].ok:
+            self.count("learn_target_not_in_view")
+            return
+        self.learn(frame, views, near[0])
 
     def publish_empty(self, msg: PersonCandidates, model_id: int | None = None) -> None:
         """An answer that judged nothing; ``model_id`` defaults to the current model's."""

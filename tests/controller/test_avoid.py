@@ -13,11 +13,12 @@ from followbot.schemas import LaserScan, TrackState
 from followbot.services.controller.avoid import (
     ObstacleGuard,
     moved_into_frame,
-    outside_view,
     scan_points,
     scan_view,
 )
 from followbot.services.controller.core import ControllerSettings, FollowController
+from followbot.services.controller.guard import GuardSettings
+from followbot.services.runtime.mount import LaserMount
 from followbot.services.sim.scenario import load_builtin
 from followbot.services.sim.simulation import Simulation
 
@@ -49,10 +50,14 @@ def test_scan_points_drop_no_returns_and_apply_the_mount():
         r, stamp_ns=0, angle_min_rad=-math.pi / 2, angle_increment_rad=math.pi / 6,
         range_min_m=0.05, range_max_m=30.0,
     )  # fmt: skip
-    pts = scan_points(scan, mount_x_m=0.1)
+    pts = scan_points(scan, LaserMount(x_m=0.1))
     assert pts.shape == (2, 2)
     assert pts[0] == pytest.approx([0.1, -1.0])
     assert pts[1] == pytest.approx([0.1 + 2.0 * math.cos(math.pi / 2), 2.0])
+    # off-centre and turned 90 deg left: the beam to the laser's right points ahead of the base
+    turned = scan_points(scan, LaserMount(x_m=0.5, y_m=-0.2, yaw_deg=90.0))
+    assert turned[0] == pytest.approx([0.5 + 1.0, -0.2])
+    assert turned[1] == pytest.approx([0.5 - 2.0, -0.2], abs=1e-9)
 
 
 def test_in_the_open_and_beside_a_wall_it_runs_alongside_the_command_stands():
@@ -95,12 +100,12 @@ def test_a_dead_end_slows_then_stops_and_the_target_s_own_legs_are_no_obstacle()
 
 def test_the_controller_stops_without_a_scan_and_leaves_the_thesis_rule_alone_when_off():
     t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.0)
-    on = FollowController(ControllerSettings(avoid_obstacles=True))
+    on = FollowController(ControllerSettings())
     c = on.on_target(t, 0.12, None)
     assert (c.linear_mps, c.reason) == (0.0, "no_scan")
     c = on.on_target(t, 0.12, np.empty((0, 2)))
     assert c.linear_mps > 0.0 and c.reason == "max_speed"
-    off = FollowController(ControllerSettings(avoid_obstacles=False))
+    off = FollowController(ControllerSettings(guard=GuardSettings(enabled=False)))
     assert off.guard is None and off.on_target(t, 0.12, None).reason == "max_speed"
 
 
@@ -108,18 +113,15 @@ def _follow(
     avoid: bool,
     seconds: float = 14.0,
     seed: int | None = None,
-    scenario_name: str = "ristic_wall_corridor",
-    hidden_lost: bool = False,
     **settings,
 ) -> tuple[int, float]:
     """ristic_wall_corridor's target along the wall, the controller on the truth (no
-    tracker): (bumps, distance to the target at the end). ``hidden_lost``: the target is
-    lost while the laser does not see it (else it is known through walls)."""
-    scenario = load_builtin(scenario_name)
+    tracker): (bumps, distance to the target at the end); ``settings``: guard settings."""
+    scenario = load_builtin("ristic_wall_corridor")
     if seed is not None:
         scenario = msgspec.structs.replace(scenario, seed=seed)
     sim = Simulation(scenario)
-    ctl = FollowController(ControllerSettings(avoid_obstacles=avoid, **settings))
+    ctl = FollowController(ControllerSettings(guard=GuardSettings(enabled=avoid, **settings)))
     period = round(1e9 / sim.scenario.laser.rate_hz)
     t = 0
     while t < seconds * 1e9:
@@ -129,7 +131,7 @@ def _follow(
         p = next(q for q in truth.people if q.is_target)
         st = TrackState(
             stamp_ns=t,
-            status="lost" if hidden_lost and not p.visible_laser else "tracking",
+            status="tracking",
             x_m=p.robot_x_m,
             y_m=p.robot_y_m,
             vx_mps=p.robot_vx_mps,
@@ -156,7 +158,7 @@ def corridor_mouth() -> np.ndarray:
 
 def test_the_controller_lets_the_escape_start_only_after_standing_a_while():
     ctl = FollowController(
-        ControllerSettings(avoid_escape_m=0.3, avoid_escape_after_s=1.0, avoid_wait_s=0.0)
+        ControllerSettings(guard=GuardSettings(escape_m=0.3, escape_after_s=1.0, wait_s=0.0))
     )
     t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.1)
     reasons = [ctl.on_target(t, 0.12, corridor_mouth()).reason for _ in range(12)]
@@ -237,38 +239,38 @@ def test_toward_the_escape_s_end_the_base_turns_first_then_drives_there():
 
 
 def test_a_begun_escape_is_driven_on_though_the_way_clears_and_dropped_when_lost():
-    settings = dict(avoid_escape_m=0.3, avoid_escape_after_s=0.0, avoid_wait_s=0.0)
+    settings = dict(escape_m=0.3, escape_after_s=0.0, wait_s=0.0)
     t = TrackState(stamp_ns=0, status="tracking", x_m=3.0, y_m=0.1)
     for commit, then in ((True, "avoid_escape"), (False, "max_speed")):
-        ctl = FollowController(ControllerSettings(avoid_escape_commit=commit, **settings))
+        guard_settings = GuardSettings(escape_commit=commit, **settings)
+        ctl = FollowController(ControllerSettings(guard=guard_settings))
         assert ctl.on_target(t, 0.12, corridor_mouth()).reason == "avoid_escape"
-        assert (ctl.escape_goal is not None) == commit
+        assert (ctl.guard.escape_goal is not None) == commit
         # the next scan shows nothing in the way: committed, the base still escapes first
         assert ctl.on_target(t, 0.12, np.empty((0, 2))).reason == then
     lost = TrackState(stamp_ns=0, status="lost")  # lost: it stops, and the escape is over
-    ctl = FollowController(ControllerSettings(**settings))
+    ctl = FollowController(ControllerSettings(guard=GuardSettings(**settings)))
     ctl.on_target(t, 0.12, corridor_mouth())
     assert ctl.on_target(lost, 0.12, corridor_mouth()).reason == "lost"
-    assert (
-        ctl.escape_goal is None and ctl.on_target(t, 0.12, np.empty((0, 2))).reason == "max_speed"
-    )
+    assert ctl.guard.escape_goal is None
+    assert ctl.on_target(t, 0.12, np.empty((0, 2))).reason == "max_speed"
 
 
 def test_closed_loop_at_the_corridor_s_mouth_the_escape_takes_the_base_in():
     """ristic_wall_corridor seed 1, 30 s, the controller on the truth: without the escape
     the base stands at the mouth and the target walks away (5.5 m ahead); escaping afresh
     each step it gets in late (2.8 m); with the escape driven to its end past the corner
-    (avoid_escape_commit, default) it follows close (1.6 m)."""
-    bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.0)
+    (guard.escape_commit, default) it follows close (1.6 m)."""
+    bumps, dist = _follow(True, 30.0, seed=1, escape_m=0.0)
     assert bumps == 0 and dist > 5.0
-    bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.3, avoid_escape_commit=False)
+    bumps, dist = _follow(True, 30.0, seed=1, escape_m=0.3, escape_commit=False)
     assert bumps == 0 and 2.5 < dist < 3.5
-    bumps, dist = _follow(True, 30.0, seed=1, avoid_escape_m=0.3)
+    bumps, dist = _follow(True, 30.0, seed=1, escape_m=0.3)
     assert bumps == 0 and dist < 2.0
 
 
 def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
-    """avoid_wait_s: a passer-by 0.8 m ahead on the line to the target 2.5 m away: the base
+    """guard.wait_s: a passer-by 0.8 m ahead on the line to the target 2.5 m away: the base
     slows to stop short and waits 1.5 s; if they do not clear the line, it goes round."""
     ang = np.linspace(0.0, 2 * math.pi, 40)
     passer = np.column_stack([0.8 + 0.12 * np.cos(ang), 0.12 * np.sin(ang)])
@@ -288,7 +290,7 @@ def test_someone_on_the_line_to_the_target_is_waited_for_then_gone_round():
         "avoid_turn",
     ]
     ctl = FollowController(
-        ControllerSettings(avoid_obstacles=True, avoid_wait_s=1.5, avoid_wait_moving_only=False)
+        ControllerSettings(guard=GuardSettings(wait_s=1.5, wait_moving_only=False))
     )
     t = TrackState(stamp_ns=0, status="tracking", x_m=2.5, y_m=0.0)
     reasons = [ctl.on_target(t, 0.12, passer).reason for _ in range(20)]
@@ -330,83 +332,44 @@ def test_with_wait_moving_only_a_pillar_on_the_line_is_gone_round_at_once():
 
 
 def test_the_scan_s_view_is_its_beams_seen_from_the_laser():
-    """scan_view / outside_view: a +-50 deg scan (201 beams of 0.5 deg) mounted 0.1 m ahead
-    of the base covers 40 deg and not 60 deg (bearings from the laser); a full circle covers
-    everything."""
+    """scan_view: a +-50 deg scan (201 beams of 0.5 deg) mounted 0.1 m ahead of the base."""
     scan = LaserScan(
         stamp_ns=1, angle_min_rad=-math.radians(50.0), angle_increment_rad=math.radians(0.5),
         range_min_m=0.05, range_max_m=8.0, ranges=np.full(201, 3.0, dtype=np.float32),
     )  # fmt: skip
-    view = scan_view(scan, 0.1)
-    assert view[0] == 0.1 and math.degrees(view[2]) == pytest.approx(50.0)
-    at = [0.1 + np.cos(np.radians([40.0, 60.0, -60.0])), np.sin(np.radians([40.0, 60.0, -60.0]))]
-    assert outside_view(np.column_stack(at), view).tolist() == [False, True, True]
-    assert not outside_view(np.column_stack(at), (0.0, -math.pi, math.pi)).any()
+    view = scan_view(scan, LaserMount(x_m=0.1))
+    assert (view.x_m, view.y_m) == (0.1, 0.0)
+    assert [math.degrees(b) for b in view[2:]] == [pytest.approx(-50.0), pytest.approx(50.0)]
+    # the same laser at (0.5, -0.2), turned 90 deg left: it covers the base's left, not ahead
+    turned = scan_view(scan, LaserMount(x_m=0.5, y_m=-0.2, yaw_deg=90.0))
+    assert (turned.x_m, turned.y_m) == (0.5, -0.2)
+    assert [math.degrees(b) for b in turned[2:]] == [pytest.approx(40.0), pytest.approx(140.0)]
 
 
-def test_remembered_returns_are_moved_with_the_base_and_kept_only_out_of_the_laser_s_view():
-    """avoid_memory_s: a post 0.6 m ahead-left (37 deg, in a +-50 deg view) is remembered;
-    after the base turned 45 deg right on the spot it lies at 82 deg, out of view, and is
-    returned with the scan (masked as remembered); a return the scan covers again is not
-    (the scan alone counts there); after avoid_memory_s it is forgotten."""
-    view = (0.0, -math.radians(50.0), math.radians(50.0))
-    ctl = FollowController(ControllerSettings(avoid_memory_s=1.0))
-    post = np.array([[0.48, 0.36]])
-    ahead = np.array([[2.0, 0.0]])
-    pts, mem = ctl.remembered(np.vstack([post, ahead]), view, 0.12)
-    assert mem is None and pts.shape == (2, 2)
-    ctl.v, ctl.w = 0.0, -math.radians(90.0)  # the last command: turning right at 90 deg/s
-    pts, mem = ctl.remembered(np.empty((0, 2)), view, 0.5)
-    assert mem is not None and mem.all() and pts.shape == (1, 2)  # the post; "ahead" is in view
-    assert math.degrees(math.atan2(pts[0, 1], pts[0, 0])) == pytest.approx(81.9, abs=0.5)
-    assert math.hypot(*pts[0]) == pytest.approx(0.6, abs=1e-9)
-    ctl.w = 0.0
-    pts, mem = ctl.remembered(np.empty((0, 2)), view, 0.6)  # 1.1 s old: forgotten
-    assert mem is None and pts.shape == (0, 2)
-    off = FollowController(ControllerSettings(avoid_memory_s=0.0))
-    off.remembered(post, view, 0.12)
-    off.w = -math.radians(90.0)
-    assert off.remembered(np.empty((0, 2)), view, 0.5)[0].shape == (0, 2)
-
-
-def test_remembered_returns_keep_the_body_off_them_not_the_margin():
-    """A return 0.5 m ahead, 0.28 m beside the straight path: from the scan it blocks it
-    (inside the body and margin, 0.30 m), remembered it does not (the body and 0.01 m, 0.26
-    m); 0.2 m beside it blocks it either way."""
+def test_the_limited_arc_s_check_is_for_contact_not_the_margin():
+    """A return 0.5 m ahead, 0.28 m beside the straight path: the goal's check turns or slows
+    the command (inside the body and margin, 0.30 m), the check of the limited command
+    (guard.check_limited: the body and 0.01 m, 0.26 m) lets it pass; 0.2 m beside it blocks
+    both."""
     g = guard()
-    for lateral, memory_blocks in ((0.28, False), (0.2, True)):
+    for lateral, contact in ((0.28, False), (0.2, True)):
         pts = np.array([[0.5, lateral]])
-        assert g.apply(0.5, 0.0, pts, None)[2] is not None  # the scan's: turned or slowed
-        remembered = g.apply(0.5, 0.0, pts, None, remembered=np.array([True]))
-        assert (remembered[2] is not None) == memory_blocks
-        # the limited command's check (avoid_check_limited) is the contact check for both
-        assert g.blocked(0.5, 0.0, pts, None) == memory_blocks
-        assert g.blocked(0.5, 0.0, pts, None, np.array([True])) == memory_blocks
-
-
-def test_closed_loop_round_a_box_the_corner_out_of_the_laser_s_view_is_not_touched():
-    """avoid_memory_s: livingston_box_occlusion, 40 s, the controller on the truth (the target
-    lost while hidden): turning back towards its target the base swung into the box's corner
-    beside it, outside the thesis laser's +-50 deg; remembering it (3 s), it does not."""
-    bumps, _ = _follow(True, 40.0, scenario_name="livingston_box_occlusion", hidden_lost=True,
-                       avoid_memory_s=0.0)  # fmt: skip
-    assert bumps >= 1
-    bumps, _ = _follow(True, 40.0, scenario_name="livingston_box_occlusion", hidden_lost=True,
-                       avoid_memory_s=3.0)  # fmt: skip
-    assert bumps == 0
+        assert g.apply(0.5, 0.0, pts, None)[2] is not None
+        assert g.blocked(0.5, 0.0, pts, None) == contact
 
 
 @pytest.mark.parametrize("check", [True, False])
 def test_the_arc_the_limits_leave_is_checked_too(check):
-    """avoid_check_limited: at rest, a post 0.27 m abeam to the left, the target 45 deg left.
+    """guard.check_limited: at rest, a post 0.27 m abeam to the left, the target 45 deg left.
     The rule's arc (0.75 m/s, 1.18 rad/s) passes clear of the post, but the limits leave
     0.06 m/s at 0.63 rad/s this step -- a 0.1 m radius that swings the body within 0.26 m of
     the post in its second. Checked, the base turns on the spot instead (avoid_stop)."""
-    ctl = FollowController(ControllerSettings(avoid_check_limited=check, avoid_memory_s=0.0))
+    ctl = FollowController(ControllerSettings(guard=GuardSettings(check_limited=check)))
     post = np.array([[0.0, 0.27]])
     target = TrackState(stamp_ns=0, status="tracking", x_m=2.0, y_m=2.0)
-    assert ctl.guard.apply(0.75, 1.5 * math.pi / 4, post, (2.0, 2.0))[2] is None  # goal free
-    assert ctl.guard.blocked(0.06, 0.63, post, (2.0, 2.0))  # the limited arc is not
+    g = ctl.guard.geometry
+    assert g.apply(0.75, 1.5 * math.pi / 4, post, (2.0, 2.0))[2] is None  # goal free
+    assert g.blocked(0.06, 0.63, post, (2.0, 2.0))  # the limited arc is not
     c = ctl.on_target(target, 0.12, post)
     assert c.angular_radps == pytest.approx(0.63, abs=0.01)
     assert (c.linear_mps, c.reason) == ((0.0, "avoid_stop") if check else (0.06, "max_speed"))

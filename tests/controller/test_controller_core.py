@@ -8,14 +8,24 @@ import math
 import msgspec
 import numpy as np
 import pytest
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from followbot.schemas import TrackState
-from followbot.services.controller.core import ControllerSettings, FollowController
+from followbot.services.controller.core import (
+    ControllerSettings,
+    FollowController,
+    LimitsSettings,
+    PanSettings,
+)
+from followbot.services.controller.guard import GuardSettings
+from followbot.services.controller.node import ControllerNodeSettings
+from followbot.services.runtime.settings import SettingsError, load_settings
 
 DEG = math.pi / 180
-RULE = ControllerSettings(avoid_obstacles=False)  # the thesis rule alone (test_avoid.py: guard)
+OFF = GuardSettings(enabled=False)
+RULE = ControllerSettings(guard=OFF)  # the thesis rule alone (test_avoid.py: guard)
 
 
 def target(x, y, vx=0.0, vy=0.0, status="tracking"):
@@ -47,18 +57,14 @@ def test_turns_only_outside_the_6_degree_dead_band_and_pan_is_the_heading():
         assert pan == pytest.approx(th)
 
 
-@pytest.mark.parametrize("follow_report", [False, True])
-def test_the_rule_follows_the_filter_estimate_not_the_lone_leg_report(follow_report):
+def test_the_rule_follows_the_filter_estimate_not_the_lone_leg_report():
     """The tracker reports (1.6, 0.4) = its filter estimate (1.45, 0.3) plus a lone-leg shift
-    (0.15, 0.1): by default the rule follows the filter estimate (r 1.48 m: match speed; the
-    heading 11.7 deg), with follow_report the report (r 1.65 m: full speed; 14.0 deg)."""
+    (0.15, 0.1): the rule follows the filter estimate (r 1.48 m: match speed; the heading
+    11.7 deg), not the report (r 1.65 m would be full speed)."""
     t = msgspec.structs.replace(target(1.6, 0.4, vx=0.3), shift_x_m=0.15, shift_y_m=0.1)
-    v, _, pan, reason = FollowController(
-        ControllerSettings(avoid_obstacles=False, follow_report=follow_report)
-    ).goal(t)
-    x, y = (1.6, 0.4) if follow_report else (1.45, 0.3)
-    assert pan == pytest.approx(math.atan2(y, x))
-    assert (v, reason) == ((0.75, "max_speed") if follow_report else (0.3, "match_speed"))
+    v, _, pan, reason = FollowController(RULE).goal(t)
+    assert pan == pytest.approx(math.atan2(0.3, 1.45))
+    assert (v, reason) == (0.3, "match_speed")
 
 
 def test_coasting_keeps_the_previous_goal_lost_stops():
@@ -75,10 +81,10 @@ def test_coasting_keeps_the_previous_goal_lost_stops():
 
 
 def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limits():
-    """pan_to_look: a lost target with someone to look at (TrackState.look_*) turns the camera
-    there at 90 deg/s, at most 100 deg; the base never moves. Off: the camera holds."""
+    """pan.look_when_lost: a lost target with someone to look at (TrackState.look_*) turns the
+    camera there at 90 deg/s, at most 100 deg; the base never moves. Off: the camera holds."""
     for on in (True, False):
-        ctl = FollowController(ControllerSettings(avoid_obstacles=False, pan_to_look=on))
+        ctl = FollowController(ControllerSettings(guard=OFF, pan=PanSettings(look_when_lost=on)))
         lost = TrackState(
             stamp_ns=0, frame_id="base_link", status="lost",
             look_track_id=4, look_x_m=-1.0, look_y_m=1.0,  # 135 deg left: beyond the limit
@@ -103,24 +109,18 @@ def test_lost_the_base_stays_still_and_the_camera_turns_to_look_within_its_limit
     assert math.degrees(c.pan_rad) == pytest.approx(90 * 0.12)
 
 
-def test_coasting_with_a_look_keeps_the_base_going_and_turns_the_camera_to_the_look():
-    """A target hidden past the miss budget (tracker setting occlusion_look) is coasting with a
-    look: the base keeps the coasting command, the camera turns to the look (pan_to_look)."""
-    for on in (True, False):
-        ctl = FollowController(ControllerSettings(avoid_obstacles=False, pan_to_look=on))
-        for _ in range(40):
-            c = ctl.on_target(target(2.5, 0.0), 0.12)
-        v_tracking = c.linear_mps
-        hidden = TrackState(
-            stamp_ns=0, frame_id="base_link", status="coasting", x_m=2.5,
-            look_track_id=-1, look_x_m=1.0, look_y_m=1.0,  # 45 deg left
-        )  # fmt: skip
-        pans = []
-        for _ in range(8):
-            c = ctl.on_target(hidden, 0.12)
-            assert c.linear_mps == pytest.approx(v_tracking) and c.reason == "coasting"
-            pans.append(math.degrees(c.pan_rad))
-        assert pans[-1] == (pytest.approx(45.0) if on else pytest.approx(0.0, abs=1e-9))
+def test_coasting_keeps_the_base_s_command_and_the_camera_s_aim():
+    """Coasting is the previous goal, base and camera (thesis 3.6.2.8); the camera turns to a
+    look only while the target is lost (the tracker names none while it coasts)."""
+    ctl = FollowController(RULE)
+    for _ in range(40):
+        c = ctl.on_target(target(2.5, 0.0), 0.12)
+    v_tracking = c.linear_mps
+    hidden = TrackState(stamp_ns=0, frame_id="base_link", status="coasting", x_m=2.5)
+    for _ in range(8):
+        c = ctl.on_target(hidden, 0.12)
+        assert c.linear_mps == pytest.approx(v_tracking) and c.reason == "coasting"
+        assert c.pan_rad == pytest.approx(0.0, abs=1e-9)
 
 
 def test_the_watchdog_brakes_to_rest_within_the_deceleration_limit():
@@ -166,14 +166,15 @@ def test_limits_always_hold(seq):
             c = ctl.stop(dt)
         else:
             c = ctl.on_target(target(x, y, vx, vy, status=kind), dt, pillar)
-        assert 0.0 <= c.linear_mps <= s.max_speed_mps + tol  # no reverse by default
-        assert abs(c.angular_radps) <= s.max_turn_deg_s * DEG + tol
-        assert abs(c.pan_rad) <= s.pan_limit_deg * DEG + tol
+        lim = s.limits
+        assert 0.0 <= c.linear_mps <= lim.max_speed_mps + tol  # no reverse by default
+        assert abs(c.angular_radps) <= lim.max_turn_deg_s * DEG + tol
+        assert abs(c.pan_rad) <= s.pan.limit_deg * DEG + tol
         dv = c.linear_mps - v0
-        limit = (s.accel_mps2 if abs(c.linear_mps) > abs(v0) else s.decel_mps2) * dt
+        limit = (lim.accel_mps2 if abs(c.linear_mps) > abs(v0) else lim.decel_mps2) * dt
         assert abs(dv) <= limit + tol
-        assert abs(c.angular_radps - w0) <= s.turn_accel_deg_s2 * DEG * dt + tol
-        assert abs(c.pan_rad - p0) <= s.pan_rate_deg_s * DEG * dt + tol
+        assert abs(c.angular_radps - w0) <= lim.turn_accel_deg_s2 * DEG * dt + tol
+        assert abs(c.pan_rad - p0) <= s.pan.rate_deg_s * DEG * dt + tol
         v0, w0, p0 = c.linear_mps, c.angular_radps, c.pan_rad
 
 
@@ -185,16 +186,54 @@ def test_non_finite_goal_is_refused():
 
 def test_the_hardware_caps_bound_the_settings_and_every_command():
     with pytest.raises(
-        ValueError, match=r"max_speed_mps 50\.0 exceeds hardware_max_speed_mps 1\.0"
+        ValueError,
+        match=r"limits\.max_speed_mps 50\.0 exceeds limits\.hardware_max_speed_mps 1\.0",
     ):
-        ControllerSettings(max_speed_mps=50.0)
+        LimitsSettings(max_speed_mps=50.0)
     with pytest.raises(ValueError, match=r"max_turn_deg_s 400\.0 exceeds"):
-        ControllerSettings(max_turn_deg_s=400.0)
+        LimitsSettings(max_turn_deg_s=400.0)
+    with pytest.raises(SettingsError, match=r"limits\.max_speed_mps 50\.0 exceeds"):
+        load_settings(ControllerNodeSettings, overrides=["limits.max_speed_mps=50"])
     with pytest.raises(msgspec.ValidationError):  # no base is rated beyond the wire's bound
-        msgspec.convert({"hardware_max_speed_mps": 10.0}, ControllerSettings)
+        msgspec.convert({"limits": {"hardware_max_speed_mps": 10.0}}, ControllerSettings)
     ctl = FollowController(
-        ControllerSettings(max_speed_mps=1.0, accel_mps2=100.0, avoid_obstacles=False)
+        ControllerSettings(limits=LimitsSettings(max_speed_mps=1.0, accel_mps2=100.0), guard=OFF)
     )
     far = TrackState(stamp_ns=1, status="tracking", x_m=9.0, y_m=0.0)
     c = ctl.on_target(far, 1.0)
     assert c.linear_mps == 1.0 and c.reason == "max_speed"
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ("max_speed_mps=0.5", "limits.max_speed_mps"),
+        ("pan_to_look=false", "pan.look_when_lost"),
+        ("avoid_obstacles=false", "guard.enabled"),
+        ("avoid_escape_m=0", "guard.escape_m"),
+    ],
+)
+def test_a_moved_setting_is_refused_with_its_new_key(old, new, tmp_path):
+    """The settings nested by role: an old flat key, in a file or --set, names the new one."""
+    with pytest.raises(SettingsError, match=rf"--set: {old.split('=')[0]} was renamed: set {new}"):
+        load_settings(ControllerNodeSettings, overrides=[old])
+    key, value = old.split("=")
+    path = tmp_path / "controller.yaml"
+    path.write_text(f"{key}: {value}\n")
+    with pytest.raises(SettingsError, match=rf"{new} instead"):
+        load_settings(ControllerNodeSettings, config_file=path)
+    *sections, last = new.split(".")
+    nested = load_settings(ControllerNodeSettings, overrides=[f"{new}={value}"])
+    assert getattr(getattr(nested, sections[0]), last) == yaml.safe_load(value)
+
+
+@pytest.mark.parametrize("key", ["follow_report", "avoid_memory_s"])
+def test_a_removed_experiment_is_refused_with_the_reason(key):
+    with pytest.raises(SettingsError, match=rf"{key} was removed \(.*docs/tracker_log\.md"):
+        load_settings(ControllerNodeSettings, overrides=[f"{key}=0"])
+
+
+def test_at_most_25_top_level_settings_the_rest_nested_by_role():
+    assert len(ControllerNodeSettings.__struct_fields__) <= 25
+    s = load_settings(ControllerNodeSettings, overrides=["guard.wait_s=0"])
+    assert s.guard.wait_s == 0.0 and s.guard.escape_m == 0.3  # the section's other defaults

@@ -229,7 +229,7 @@ def test_vote_share_counts_the_trees_voting_leg():
 def _labelled_pair_and_post():
     """Training data of one scan: a person at (2, 0) whose leg at (2, 0.15) is labelled, and a
     post at (2, 1.5). Returns the ScanData and masks of its labelled leg, partner and post."""
-    from followbot.services.laser_legs.train import ScanData
+    from followbot.research.train import ScanData
 
     legs = person_legs(2.0, 0.0, separation_m=0.3, leg_radius_m=R)
     pos = ScanData(
@@ -243,7 +243,7 @@ def _labelled_pair_and_post():
 
 
 def test_training_figures_and_threshold_choice_follow_the_detector_rule():
-    from followbot.services.laser_legs.train import ScanData, choose_thresholds, figures
+    from followbot.research.train import ScanData, choose_thresholds, figures
 
     s = LearnedSettings()
     # the labelled leg, its partner and a lone object: the label is found only via the pair
@@ -262,7 +262,7 @@ def test_training_figures_and_threshold_choice_follow_the_detector_rule():
 
 
 def test_threshold_choice_can_bound_the_labelled_scans_background():
-    from followbot.services.laser_legs.train import ScanData, background_false, choose_thresholds
+    from followbot.research.train import ScanData, background_false, choose_thresholds
 
     s = LearnedSettings()
     pos, near, partner, post = _labelled_pair_and_post()  # the post: 1.35 m from the label
@@ -285,7 +285,7 @@ def test_the_recall_rule_buys_the_fewest_false_persons_at_the_recall_asked():
     allows. A strong leg (0.6), a weak one (0.3), and two posts per negative scan (0.35)."""
     from types import SimpleNamespace
 
-    from followbot.services.laser_legs.train import choose_thresholds
+    from followbot.research.train import choose_thresholds
 
     pos = SimpleNamespace(
         cx=np.array([2.0, 3.0]),

@@ -217,7 +217,7 @@ def test_a_stream_of_bad_scans_never_raises(ranges):
 def test_training_replays_the_detector_exactly():
     """train.py's cross-validation (background counts, with_background, with_tracks) gives the
     scores the detector computes on the same stream, so the settings are judged as they run."""
-    from followbot.services.laser_legs import train
+    from followbot.research import train
 
     s = LearnedSettings()
     det = make_detector("learned")

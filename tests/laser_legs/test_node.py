@@ -26,6 +26,7 @@ from followbot.services.laser_legs.prediction import OdometryBuffer, TargetPredi
 from followbot.services.laser_legs.scene import make_scan, person_legs
 from followbot.services.runtime.bus import FakeNetwork
 from followbot.services.runtime.clock import ClockSettings
+from followbot.services.runtime.mount import LaserMount
 from followbot.services.runtime.node import Node
 from followbot.services.runtime.settings import SettingsError, load_settings
 
@@ -143,13 +144,24 @@ def test_prediction_can_be_switched_off():
     assert len(h.out[-1].candidates) == 2
 
 
-def test_laser_pose_in_base_moves_the_prediction():
-    p = TargetPredictor(laser_pose=(0.5, 0.0, 0.0))
-    p.add_target(target(0, 2.0, 0.8))
-    assert p.predict(two_people(100 * MS)) == pytest.approx((1.5, 0.8))
-    same = TargetPredictor(laser_pose=(0.5, 0.0, 0.0))
-    same.add_target(target(0, 2.0, 0.8, frame="base_laser"))  # already the scan's frame
-    assert same.predict(two_people(100 * MS)) == pytest.approx((2.0, 0.8))
+def test_the_laser_mount_turns_the_base_frame_target_into_the_scan_s_frame():
+    """The tracker's target is in the base frame; the gate is in the laser frame of the scan:
+    a laser 0.5 m ahead and turned 90 deg left sees a person 2 m ahead, 0.8 m left at 0.8 m
+    to its right and 1.5 m out."""
+    h = Harness(laser_mount=LaserMount(x_m=0.5, y_m=0.0, yaw_deg=90.0))
+    h.put("tracking/target", target(0, 2.0, 0.8))
+    assert h.predictor.predict(two_people(100 * MS)) == pytest.approx((0.8, -1.5))
+    assert Harness().predictor.predict(two_people(100 * MS)) is None  # no target yet
+    still = TargetPredictor()
+    still.add_target(target(0, 2.0, 0.8, frame="base_laser"))  # the frame's name changes nothing
+    assert still.predict(two_people(100 * MS)) == pytest.approx((2.0, 0.8))
+
+
+def test_the_old_laser_pose_setting_says_what_replaced_it(tmp_path):
+    cfg = tmp_path / "legs.yaml"
+    cfg.write_text("laser_pose_in_base: [0.5, 0, 0]\n")
+    with pytest.raises(SettingsError, match="laser_pose_in_base was replaced by laser_mount"):
+        load_settings(LaserLegsSettings, cfg)
 
 
 def test_the_prediction_is_the_tracker_s_filter_estimate_without_its_lone_leg_shift():

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from followbot.research.legs_evaluate import VARIANTS, build
+from followbot.research.realdata import data_dir, read_negative, read_positive, score
 from followbot.services.laser_legs import make_detector
-from followbot.services.laser_legs.evaluate import VARIANTS, build
-from followbot.services.laser_legs.realdata import data_dir, read_negative, read_positive, score
 
 pytest.importorskip("rosbags", reason="rosbags is needed to read the ROS 1 bags")
 if not (data_dir() / "positive_6_extracted.bag").is_file():

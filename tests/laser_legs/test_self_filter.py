@@ -160,7 +160,7 @@ def test_node_filters_by_default_and_null_switches_it_off():
 
 
 def test_evaluate_scores_as_the_node_runs_unless_told_not_to():
-    from followbot.services.laser_legs.evaluate import build
+    from followbot.research.legs_evaluate import build
 
     assert isinstance(build("thesis"), SelfFilteredDetector)
     assert isinstance(build("learned_notrack"), SelfFilteredDetector)

@@ -13,7 +13,9 @@ from followbot.schemas import PersonCandidates, decode, encode
 from followbot.services.laser_legs import DETECTORS, make_detector
 from followbot.services.laser_legs.core import Anchor, pair_legs
 from followbot.services.laser_legs.detectors import ClusterLegDetector, ThesisSettings
+from followbot.services.laser_legs.node import LaserLegsSettings
 from followbot.services.laser_legs.scene import make_scan, person_legs
+from followbot.services.runtime.settings import SettingsError, load_settings
 
 WALL = [
     (3.0, -3.0, 3.0, 3.0),
@@ -210,26 +212,6 @@ def test_thesis_anchor_weight_gives_the_target_its_own_leg_not_a_cross_pair():
         ThesisSettings(anchor_weight=-1.0)
 
 
-def test_lone_leg_offset_places_a_lone_leg_s_person_behind_it_unless_someone_is_near():
-    """lone_leg_offset_m: a person 2.1 m ahead, legs one behind the other: only the near leg
-    shows (at 1.99 m). Off, the person is at the leg; 0.1 m, 0.1 m beyond it along the bearing
-    (the leg itself stays where it was seen). With another person's legs within
-    lone_leg_clear_m, the lone leg stays as it is."""
-    alone = make_scan([(2.0, 0.0, 0.06), (2.2, 0.0, 0.06)], [(4, -4, 4, 4)])
-
-    def lone(scan, offset):
-        found = ClusterLegDetector(ThesisSettings(lone_leg_offset_m=offset)).detect(scan)
-        c = next(c for c in found.candidates if len(c.legs) == 1)
-        return round(c.x_m, 3), round(c.legs[0].x_m, 3), round(c.range_m, 3)
-
-    assert lone(alone, 0.0) == (1.993, 1.993, 1.993)
-    assert lone(alone, 0.1) == (2.093, 1.993, 2.093)
-    crowded = make_scan(
-        [(2.0, 0.0, 0.06), (2.2, 0.0, 0.06), (2.3, 0.7, 0.06), (2.4, 0.95, 0.06)], [(4, -4, 4, 4)]
-    )
-    assert lone(crowded, 0.1) == (1.993, 1.993, 1.993)
-
-
 @settings(max_examples=300, deadline=None)
 @given(
     st.lists(st.tuples(st.floats(0.35, 1.15), st.floats(0.35, 1.15)), max_size=7),
@@ -282,9 +264,6 @@ def test_make_detector_by_name_and_settings():
         make_detector("nope")
     with pytest.raises(ValueError):
         ThesisSettings(min_width_m=0.5, max_width_m=0.1)
-    for bad in ({"min_edge_beams": 1}, {"edge_alone_m": -0.1}, {"edge_occluder_min_width_m": -1}):
-        with pytest.raises(ValueError, match="edge"):
-            ThesisSettings(**bad)
 
 
 def test_stamp_frame_and_empty_scan():
@@ -325,31 +304,6 @@ def test_legs_are_placed_at_their_centres_not_their_surfaces(rng_m):
     assert max(errors(ClusterLegDetector())) < 0.01
     literal = errors(ClusterLegDetector(ThesisSettings(leg_centre_factor=0.0)))
     assert min(literal) > 0.04  # the surface: ~pi R / 4 = 4.7 cm in front of the centre
-
-
-def test_a_half_hidden_leg_completes_a_lone_leg_only_when_asked_and_alone():
-    """Step 8 of the thesis detector (``occluded_partner``): a person walking straight at the
-    laser shows one leg and, beside its edge, a sliver of the other leg behind it."""
-    near, far = (1.20, 0.0, 0.06), (1.45, 0.07, 0.06)  # the far leg mostly behind the near one
-    scan = make_scan([near, far], [(3.0, -3.0, 3.0, 3.0)])
-    thesis = make_detector("thesis")
-    (c,) = [c for c in thesis.detect(scan).candidates if c.range_m < 2.0]
-    assert len(c.legs) == 1  # the thesis: a one-leg person at the visible leg
-    completed = make_detector("thesis", {"occluded_partner": True})
-    (c,) = [c for c in completed.detect(scan).candidates if c.range_m < 2.0]
-    assert len(c.legs) == 2 and c.pattern == "two_legs"
-    hidden = c.legs[1]
-    assert math.hypot(hidden.x_m - far[0], hidden.y_m - far[1]) < 0.08
-    assert math.hypot(c.x_m - 1.325, c.y_m - 0.035) < 0.06  # the person between its legs
-    # another person (two legs) beside it, one leg within 0.5 m: the sliver may be theirs
-    other = [(1.2, -0.45, 0.06), (1.2, -0.7, 0.06)]
-    crowd = completed.detect(make_scan([near, far, *other], [(3.0, -3.0, 3.0, 3.0)]))
-    (lone,) = [c for c in crowd.candidates if abs(c.y_m) < 0.2 and c.range_m < 2.0]
-    assert len(lone.legs) == 1
-    assert any(len(c.legs) == 2 and c.y_m < -0.4 for c in crowd.candidates)
-    # a wall right behind the leg is no leg: the run continues, it does not end in a jump back
-    wall = make_scan([near], [(1.45, -0.5, 1.45, 0.5)])
-    assert all(len(c.legs) == 1 for c in completed.detect(wall).candidates)
 
 
 def test_pair_first_keeps_a_passer_by_s_leg_from_pairing_with_the_target_s():
@@ -402,71 +356,15 @@ def test_criterion_3_can_keep_the_others_apart_from_the_target():
     assert people(got) == [(0.0, 2), (0.25, 1), (0.75, 1)]
 
 
-def test_a_leg_half_hidden_behind_a_pillar_is_found_only_with_edge_slivers():
-    """edge_slivers: a person coming out from behind a pillar (radius 0.2 m, 0.85 m ahead)
-    shows a sliver of one leg, 3-4 beams, too narrow for criterion 2 -- occlusion_pillar's
-    target for 0.4-0.6 s each time. With the option the sliver is a leg, placed within 3 cm
-    of the leg's centre; the thesis sees nothing there."""
-    pillar = (0.85, 0.0, 0.2)
-    bearing = math.asin(0.2 / 0.85) + math.asin(0.06 / 1.3) - math.radians(1.5)
-    leg = (1.3 * math.cos(bearing), 1.3 * math.sin(bearing), 0.06)
-    scan = make_scan([pillar, leg], WALL)
-
-    def near_leg(detector):
-        found = _legs(detector.detect(scan))
-        return [p for p in found if math.hypot(p[0] - leg[0], p[1] - leg[1]) < 0.15]
-
-    assert near_leg(make_detector("thesis")) == []
-    for wide in (0.0, 0.3):  # the pillar is 0.4 m across: an occluder either way
-        settings = {"edge_slivers": True, "edge_occluder_min_width_m": wide}
-        (found,) = near_leg(make_detector("thesis", settings))
-        assert math.hypot(found[0] - leg[0], found[1] - leg[1]) < 0.03
-    assert (
-        near_leg(make_detector("thesis", {"edge_slivers": True, "edge_occluder_min_width_m": 0.5}))
-        == []
-    )
-    # edge_only_searching: only in scans without a prediction (no target tracked)
-    searching = make_detector("thesis", {"edge_slivers": True, "edge_only_searching": True})
-    at = np.array([leg[0], leg[1]])
-    assert near_leg(searching) != []
-    assert _legs(searching.detect(scan, at)) == []
-    assert _legs(make_detector("thesis", {"edge_slivers": True}).detect(scan, at)) != []
-    # edge_pairs off: the sliver's leg is a person of its own, never paired
-    alone = make_detector("thesis", {"edge_slivers": True, "edge_pairs": False})
-    (c,) = [
-        c
-        for c in alone.detect(scan).candidates
-        if math.hypot(c.x_m - leg[0], c.y_m - leg[1]) < 0.15
-    ]
-    assert c.pattern == "edge_leg" and len(c.legs) == 1
-    # edge_alone_m: not within that distance of a whole leg (someone beside the pillar)
-    other = (1.3, 0.6, 0.06)
-    crowded = make_scan([pillar, leg, other], WALL)
-    for alone, n in ((0.0, 1), (0.5, 0)):
-        edge = make_detector("thesis", {"edge_slivers": True, "edge_alone_m": alone})
-        found = _legs(edge.detect(crowded))
-        assert sum(math.hypot(p[0] - leg[0], p[1] - leg[1]) < 0.15 for p in found) == n
-        assert _nearest(found, other[0], other[1]) < LEG_TOL_M
-    # with step 8 too: a person walking at the laser (near leg, far leg's sliver behind it)
-    # beyond the pillar keeps its two legs, and the pillar's sliver is a leg of its own
-    turn = math.radians(50)
-    c50, s50 = math.cos(turn), math.sin(turn)
-    walker = [
-        (1.2 * c50, 1.2 * s50, 0.06),
-        (1.45 * c50 - 0.07 * s50, 1.45 * s50 + 0.07 * c50, 0.06),
-    ]
-    both = make_detector("thesis", {"edge_slivers": True, "occluded_partner": True})
-    found = both.detect(make_scan([pillar, leg, *walker], WALL)).candidates
-    assert sorted(len(c.legs) for c in found) == [1, 2]
-    assert any(
-        len(c.legs) == 1 and math.hypot(c.x_m - leg[0], c.y_m - leg[1]) < 0.03 for c in found
-    )
-    # beside a leg (a person's near leg hiding the other) it is step 8's sliver, not this one
-    near = (1.0, 0.0, 0.06)
-    b = math.asin(0.06) + math.radians(1.5) - math.asin(0.06 / 1.3)  # 3 beams show
-    behind = (1.3 * math.cos(b), 1.3 * math.sin(b), 0.06)
-    legs_only = make_scan([near, behind], WALL)
-    edge = make_detector("thesis", {"edge_slivers": True})
-    assert len(_legs(edge.detect(legs_only))) == len(
-        _legs(make_detector("thesis").detect(legs_only))
-    )
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("edge_slivers", True), ("occluded_partner", True), ("lone_leg_offset_m", 0.1)],
+)
+def test_a_removed_detector_experiment_is_refused_with_the_reason(key, value):
+    """Experiments measured and left off are gone; naming one, directly or through
+    laser_legs' detector_settings, says so and where it was measured."""
+    with pytest.raises(ValueError, match=rf"^{key} was removed \(.*docs/laser_legs\.md"):
+        make_detector("thesis", {key: value})
+    with pytest.raises(SettingsError, match=rf"detector_settings for 'thesis': {key} was removed"):
+        load_settings(LaserLegsSettings, overrides=[f"detector_settings.{key}={value}"])
+    assert make_detector("thesis", {"pair_distance_m": 0.4}).settings.pair_distance_m == 0.4

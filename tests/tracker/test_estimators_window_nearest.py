@@ -9,10 +9,10 @@ import msgspec
 import numpy as np
 import pytest
 
+from followbot.research.closedloop import metrics, run, world_estimate
 from followbot.schemas import Candidate, Odometry, PersonCandidates
 from followbot.services.runtime.compose import PRESETS
 from followbot.services.runtime.plugins import UnknownPlugin
-from followbot.services.tracker.closedloop import metrics, run, world_estimate
 from followbot.services.tracker.core import Tracker, TrackerSettings, se2_change
 from followbot.services.tracker.estimators import (
     BUILTIN,

@@ -7,8 +7,8 @@ import math
 import msgspec
 import pytest
 
+from followbot.research.closedloop import metrics, run, world_estimate
 from followbot.services.sim.scenario import Scenario
-from followbot.services.tracker.closedloop import metrics, run, world_estimate
 
 STANDING = msgspec.convert(
     {

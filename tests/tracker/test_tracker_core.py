@@ -472,6 +472,29 @@ def test_status_initialising_tracking_coasting_then_lost_after_more_than_8_misse
     assert statuses[8][0] == "lost" and statuses[9][0] == "lost"
 
 
+def test_a_coasting_target_names_no_look_a_lost_one_does():
+    """TrackState.look_* (whom the camera should look at) is named only once the target is
+    lost; while it coasts, someone else in view or not, there is none, so the controller
+    keeps the coasting goal for the camera too."""
+    trk = Tracker(TrackerSettings())
+    for k in range(4):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        if k == 0:
+            trk.set_target_model(model(0, 2.0, 0.0))
+    assert target.status == "tracking"
+    looks = {}
+    for k in range(4, 16):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (1.5, 1.5)))  # someone else, 1.6 m away
+        looks.setdefault(target.status, []).append(
+            (target.look_track_id, target.look_x_m, target.look_y_m)
+        )
+    assert set(looks) == {"coasting", "lost"}
+    assert set(looks["coasting"]) == {(-1, 0.0, 0.0)}
+    assert all(look != (-1, 0.0, 0.0) for look in looks["lost"])
+
+
 def test_missing_odometry_is_flagged_and_tracking_continues():
     trk = Tracker(TrackerSettings(acquire="nearest"))
     for k in range(5):
@@ -1696,3 +1719,21 @@ def test_a_target_that_walked_out_of_reach_is_looked_for_where_it_comes_back(wit
         )
         target, _ = trk.step(seen(j * SCAN_NS, back))
     assert (target.status == "tracking") == kept
+
+
+def test_a_track_its_estimator_gives_up_on_as_it_is_matched_is_never_the_target():
+    # every UKF track expires at once (its spread beyond a tiny bound): the nearest candidate
+    # ahead is matched by a track that is deleted in the same scan; it must not become the
+    # target (which made every later scan fail on a target id with no track)
+    trk = Tracker(
+        TrackerSettings(
+            acquire="nearest",
+            estimator="ukf",
+            estimator_settings={"max_position_variance_m2": 1e-9},
+        )
+    )
+    for k in range(5):
+        still_robot(trk, k * SCAN_NS)
+        out, _people = trk.step(cands(k * SCAN_NS, (1.5, 0.0)))
+        assert out.track_id < 0 or out.track_id in trk.tracks
+    assert trk.target_id < 0 or trk.target_id in trk.tracks

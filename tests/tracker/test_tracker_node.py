@@ -135,7 +135,7 @@ def test_controller_brakes_to_zero_when_the_tracker_goes_away(pipeline):
 
 
 def test_the_controller_stops_without_a_scan_and_short_of_a_wall(pipeline):
-    """avoid_obstacles (default): no sensors/scan -> each target is answered after
+    """guard.enabled (default): no sensors/scan -> each target is answered after
     scan_wait_s, and the base stays put (no_scan); a wall 0.6 m ahead between the robot and a
     target 3 m away -> it does not drive into it."""
     net, _, controller = pipeline

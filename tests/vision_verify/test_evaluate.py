@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from followbot.services.vision_verify import evaluate
-from followbot.services.vision_verify.evaluate import SimScore, calibrate, evaluate_sim
+from followbot.research import vision_evaluate as evaluate
+from followbot.research.vision_evaluate import SimScore, calibrate, evaluate_sim
 
 
 def test_hidden_target_scene_hides_the_target_while_a_bystander_is_in_view():

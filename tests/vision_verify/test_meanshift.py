@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from followbot.research.vision_evaluate import evaluate_sim
 from followbot.services.vision_verify.core import (
     ImageFeatures,
     Model,
@@ -15,7 +16,6 @@ from followbot.services.vision_verify.core import (
     choose,
     judge,
 )
-from followbot.services.vision_verify.evaluate import evaluate_sim
 from followbot.services.vision_verify.model import build_model
 from followbot.services.vision_verify.verifiers.meanshift import (
     MeanShiftSettings,

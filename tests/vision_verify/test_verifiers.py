@@ -22,7 +22,7 @@ from followbot.services.vision_verify.verifiers import REGISTRY, make_verifier
 
 from .helpers import HOW, acquired_scene, opencv_sample, owner
 
-NAMES = ["face", "histogram", "meanshift"]
+NAMES = ["face", "histogram", "meanshift", "online"]
 
 
 def test_the_three_verifiers_are_registered():
@@ -55,7 +55,7 @@ def test_conformance(name):
     assert judge(v, ImageFeatures(px), camera, model, xy[-2:], 0.0, None).chosen == -1
 
 
-@pytest.mark.parametrize("name", ["histogram", "meanshift"])
+@pytest.mark.parametrize("name", ["histogram", "meanshift", "online"])
 def test_appearance_verifiers_prefer_the_target_in_the_crossing(name):
     """t = 4..6 s: the bystander (yellow checks) crosses in front of the target (red)."""
     camera, acq, frames = acquired_scene()

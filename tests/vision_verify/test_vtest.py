@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from followbot.services.vision_verify.evaluate import evaluate_vtest
+from followbot.research.vision_evaluate import evaluate_vtest
 
 from .helpers import HOW, opencv_sample
 

@@ -4,7 +4,10 @@
 Detectors are plugins of the entry-point group ``followbot.detectors`` (the built-in ones are
 declared in pyproject.toml), so another package can add its own: a class with ``name``,
 ``settings_type`` (a frozen msgspec Struct) and ``detect(scan, prediction=None)``.
-Settings are passed as a Struct or as a mapping of overrides.
+Settings are passed as a Struct or as a mapping of overrides; a settings type may list keys it
+no longer has in a class attribute ``retired_settings`` (key -> what to do instead, see
+services/runtime/settings.py ``removed``/``renamed``), and overrides naming one are refused
+with that message.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ __all__ = [
     "LearnedSettings",
     "RandomTreesLegDetector",
     "ThesisSettings",
+    "detector_settings",
     "make_detector",
 ]
 
@@ -56,6 +60,16 @@ DETECTORS: dict[str, tuple[type, type]] = {
 REGISTRY = Registry("detectors")
 
 
+def detector_settings(settings_cls: type, overrides: Mapping[str, Any]) -> Any:
+    """``overrides`` as a ``settings_cls``; a key it lists as retired is a ValueError saying
+    what to do instead, any other bad key or value msgspec's ValidationError."""
+    retired = getattr(settings_cls, "retired_settings", None) or {}
+    for key in overrides:
+        if key in retired:
+            raise ValueError(f"{key} {retired[key]}")
+    return msgspec.convert(dict(overrides), settings_cls)
+
+
 def make_detector(name: str = "thesis", settings: Any = None) -> LegDetector:
     """The detector called ``name`` with ``settings`` (Struct, mapping of overrides, or None)."""
     try:
@@ -64,7 +78,7 @@ def make_detector(name: str = "thesis", settings: Any = None) -> LegDetector:
         raise ValueError(str(exc)) from None
     settings_cls = cls.settings_type
     if isinstance(settings, Mapping):
-        settings = msgspec.convert(dict(settings), settings_cls)
+        settings = detector_settings(settings_cls, settings)
     elif settings is not None and not isinstance(settings, settings_cls):
         raise TypeError(f"{name} expects {settings_cls.__name__}, got {type(settings).__name__}")
     return cls(settings)

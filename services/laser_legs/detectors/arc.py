@@ -49,7 +49,10 @@ class ArcSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     gate_m: float = 0.400  # thesis 4.3.2 eq. 4-7 (criterion 3, when a prediction is given)
     pair_distance_m: float = 0.500  # thesis 4.3.3
     two_leg_confidence: float = 1.0
+    """PersonCandidate.confidence of a person of two legs (reported; the tracker does not
+    weigh by it)."""
     one_leg_confidence: float = 0.6
+    """PersonCandidate.confidence of a person seen as one leg."""
 
     def __post_init__(self) -> None:
         if self.min_points < 3:

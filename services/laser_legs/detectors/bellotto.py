@@ -57,6 +57,8 @@ class BellottoSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     gate_m: float = 0.40  # thesis 4.3.2 criterion 3, when a prediction is given
     la_confidence: float = 1.0  # seed 002: LA patterns are the most reliable
     fs_confidence: float = 0.8
+    """PersonCandidate.confidence of an FS pattern (two legs, one hiding part of the other);
+    seed 002 ranks FS between LA and SL."""
     sl_confidence: float = 0.4  # seed 002: SL patterns are the easiest to misinterpret
 
     def __post_init__(self) -> None:

@@ -53,7 +53,10 @@ class DerivativeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     min_points: int = 3  # not in seed 004
     window_m: float = 1.0  # seed 004 5.1: search window 1 m x 1 m
     two_leg_confidence: float = 0.8
+    """PersonCandidate.confidence of a person of two segments (reported; the tracker does
+    not weigh by it)."""
     one_leg_confidence: float = 0.4
+    """PersonCandidate.confidence of a person of one segment."""
 
     def __post_init__(self) -> None:
         if not self.threshold_m > 0:

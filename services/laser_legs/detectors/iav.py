@@ -93,6 +93,8 @@ class IAVSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     clip_range_m: float | None = None  # seed 003 clips nothing
     cluster_jump_m: float = 0.10  # not in seed 003: 10 cm segmentation jump
     min_points: int = 4
+    """Clusters of fewer points are no leg (at least 3: an inscribed angle needs an interior
+    point; 4 gives two angles for a variance)."""
     min_mean_angle_rad: float = math.radians(90.0)  # seed 003 [6] (Xavier 2005)
     max_mean_angle_rad: float = math.radians(135.0)  # seed 003 [6]
     max_std_angle_rad: float = math.radians(8.6)  # seed 003 [6]
@@ -117,6 +119,7 @@ class IAVSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     correction when it rescales W). 0: the raw end-to-end width."""
     min_leg_width_m: float = 0.10  # thesis 3.4.2: leg diameter 0.1-0.25 m
     max_leg_width_m: float = 0.25
+    """A circle (one leg) is at most this wide (m; thesis 3.4.2: leg diameter 0.1-0.25 m)."""
     min_pair_width_m: float = 0.15  # not in seed 003: two legs together
     max_pair_width_m: float = 0.45  # not in seed 003 (Bellotto seed 002: together <= 0.40 m)
     line_mean_angle_rad: float = math.radians(165.0)  # not in seed 003: flatter is a line
@@ -126,7 +129,10 @@ class IAVSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     below 180 deg, so "not a line" must be shown beyond the noise). 0: the plain threshold."""
     gate_m: float = 0.400  # thesis 4.3.2 (when a prediction is given)
     circle_confidence: float = 0.7
+    """PersonCandidate.confidence of a leg found as a circle (reported; the tracker does not
+    weigh by it)."""
     segment_confidence: float = 0.4
+    """PersonCandidate.confidence of a two-leg segment (not a line, not a circle)."""
 
     def __post_init__(self) -> None:
         if self.min_points < 3:

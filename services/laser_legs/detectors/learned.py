@@ -50,7 +50,7 @@ project whose recordings we evaluate on; our own feature set and code.
    cross-validation inside the training split.
 
 The model file ships with the package (``services/laser_legs/models/``); it is produced by
-``python -m followbot.services.laser_legs.train`` (reproducible: fixed seeds, documented data
+``python -m followbot.research.train`` (reproducible: fixed seeds, documented data
 split). ``model_path`` selects another file.
 """
 
@@ -140,18 +140,17 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """
 
     model_path: str = ""  # "" = the model shipped with the package
-    # thresholds chosen with the background and track settings below by train.py's rule of the
-    # eighth session (--min-recall 0.92: the fewest validation false persons at >= 0.92
-    # validation recall; the background chosen again under the tracks; docs/laser_legs.md).
-    # The earlier rule (the highest validation recall within 0.4 false persons/scan) chose the
-    # background 2 s / 0.9 / 0.15 and these thresholds: evaluate's `learned_maxrecall`; with
-    # the background but no tracks 0.25 / 0.10: `learned_notrack`; with neither 0.35 / 0.15:
-    # `learned_nobg`
+    # thresholds chosen with the background and track settings below by train.py's rule
+    # --min-recall 0.92 (the fewest validation false persons at >= 0.92 validation recall;
+    # the background chosen again under the tracks; docs/laser_legs.md, which also compares
+    # evaluate's variants `learned_maxrecall`, `learned_notrack` and `learned_nobg`)
     threshold: float = 0.10  # score for a one-leg person (train.py, cross-validation)
     pair_threshold: float = 0.05  # score of both legs of a two-leg person (same)
     cluster_gap_m: float = 0.13  # not in the seeds (leg_tracker's cluster distance)
     min_points: int = 3
+    """Segments of fewer points are not classified (at least 3: the features need them)."""
     max_width_m: float = 0.6
+    """Segments wider end to end than this (m) are not classified (two legs together fit)."""
     pair_distance_m: float = 0.500  # thesis 4.3.3
     gate_m: float = 0.400  # thesis 4.3.2 criterion 3, when a prediction is given
     # static background (background.py; not in the seeds): a segment seen occupied in at least
@@ -688,8 +687,7 @@ def load_model(path: Path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(
-            f"no learned leg model at {path}; train one with "
-            "`python -m followbot.services.laser_legs.train`"
+            f"no learned leg model at {path}; train one with `python -m followbot.research.train`"
         )
     if path.suffix == ".gz":
         with tempfile.TemporaryDirectory() as tmp:

@@ -30,7 +30,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from followbot.geometry import wrap_angle
+from followbot.services.common.geometry import wrap_angle
 
 __all__ = ["Estimator", "EstimatorBase", "check_estimator", "wrap_angle"]
 

@@ -62,7 +62,11 @@ class KalmanWindowSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
     accel_noise: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     """White-noise acceleration density q (m^2/s^3), as the UKF's."""
     initial_position_std_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
+    """Standard deviation (m) of a new track's position, in x and in y: the first detection's
+    accuracy."""
     initial_velocity_std_mps: Annotated[float, msgspec.Meta(gt=0)] = 0.7
+    """Standard deviation (m/s) of a new track's velocity, in x and in y (it starts at 0):
+    about a walking speed, since a new person's motion is unknown."""
 
     def __post_init__(self) -> None:
         if not self.min_window_m <= self.window_m <= self.max_window_m:

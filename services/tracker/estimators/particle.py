@@ -64,6 +64,7 @@ class ParticleSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     # thesis 4.5: sigma_d = 100 mm, sigma_A = 5 deg (used as exp(-e^2 / sigma^2), eq. 3-36)
     range_std_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
     bearing_std_deg: Annotated[float, msgspec.Meta(gt=0)] = 5.0
+    """sigma_A (deg) of the bearing likelihood exp(-e^2 / sigma_A^2) (thesis 4.5, eq. 3-36)."""
     velocity_model: Literal["random_walk", "constant_velocity", "mixed"] = "random_walk"
     """random_walk: the thesis's eq. 3-30, v drawn afresh from N(0, sigma_v^2) every step.
     constant_velocity: v_k = v_{k-1} + N(0, (accel_std dT)^2), an alternative that keeps the

@@ -34,15 +34,21 @@ class UKFSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     # seed 002 eq. 18: sigma_b = pi/60 rad (3 deg), sigma_r = 0.1 m
     bearing_std_rad: Annotated[float, msgspec.Meta(gt=0)] = math.pi / 60
     range_std_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
+    """Range measurement noise sigma_r (m; seed 002 eq. 18)."""
     accel_noise: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     """White-noise acceleration density q (m^2/s^3)."""
     initial_position_std_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
+    """Standard deviation (m) of a new track's position, in x and in y: the first detection's
+    accuracy."""
     initial_velocity_std_mps: Annotated[float, msgspec.Meta(gt=0)] = 0.7
+    """Standard deviation (m/s) of a new track's velocity, in x and in y (it starts at 0):
+    about a walking speed, since a new person's motion is unknown."""
     # seed 002 §III-C: lambda_L = 3.03 for legs (chi^2, P_G = 0.99)
     gate_sigmas: Annotated[float, msgspec.Meta(gt=0)] = 3.03
     # seed 002 §III-C: deleted after 2 s without update or var(x) + var(y) > 2 m^2
     max_unseen_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0
     max_position_variance_m2: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    """A track whose var(x) + var(y) exceeds this (m^2) is deleted (seed 002 III-C)."""
 
 
 def _fx(x: np.ndarray, dt: float) -> np.ndarray:

@@ -42,8 +42,13 @@ class FaceSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     cascade: str = "haarcascade_frontalface_default.xml"
     """A file name in cv2.data.haarcascades, or a path."""
     scale_factor: float = 1.1
+    """The Haar cascade's scale step between detection sizes (OpenCV detectMultiScale
+    scaleFactor; smaller finds more faces, slower)."""
     min_neighbors: int = 3
+    """Overlapping detections a face needs to count (detectMultiScale minNeighbors; more:
+    fewer false faces)."""
     min_face_px: int = 12
+    """Smallest face searched for (px, square; detectMultiScale minSize)."""
     sigma_bearing_rad: float = math.pi / 45  # seed 002 III-A: sigma_alpha = pi/45
     sigma_elevation_rad: float = math.pi / 45  # seed 002 III-A: sigma_beta = pi/45
     gate: float = 3.37  # seed 002 III-C: lambda_C = 3.37
@@ -53,6 +58,7 @@ class FaceSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     """Distance of a candidate with no face in its gate; None: not judged (no evidence). A
     number (e.g. 2.0, above the threshold) makes "no face" a rejection."""
     default_threshold: float = 1.0
+    """Rejection threshold on the face distance when the node's ``threshold`` is unset."""
 
 
 class FaceVerifier:

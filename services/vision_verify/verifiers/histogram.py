@@ -43,6 +43,7 @@ _WINDOW_STEP = 1.0 / 40
 class HistogramSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     colour_weight: float = 1.0  # thesis eq. 3-23: d_colour + d_edge
     edge_weight: float = 1.0
+    """Weight of d_edge, the edge-orientation histogram distance (thesis eq. 3-23: 1)."""
     default_threshold: float = 0.8
     """Rejection threshold on d_colour + d_edge when the node's ``threshold`` is unset."""
     match_windows: bool = True

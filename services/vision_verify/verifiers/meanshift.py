@@ -55,10 +55,14 @@ class MeanShiftSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
     sat_bins: int = 4  # 1: hue only, as seed 003
     s_min: int = 30  # OpenCV's camshift sample: smin 30, vmin 10 (seed 003 has no mask)
     v_min: int = 10
+    """Pixels darker than this value (V, 0-255) are outside the mask (hue means little)."""
     v_max: int = 255
+    """Pixels brighter than this value are outside the mask."""
     max_iterations: int = 10
+    """CamShift stops after this many iterations if not converged (epsilon_px) sooner."""
     epsilon_px: float = 1.0  # seed 003 V-A: converged when the centre moves < 1 pixel
     drift_weight: float = 1.0
+    """Weight of the window's drift (its shift over the rectangle's width) in the distance."""
     combine: Literal["max", "mean"] = "max"
     """How the halves' distances combine: both must match (max), or on average (mean)."""
     mass: bool = True

@@ -30,8 +30,7 @@ import msgspec
 import numpy as np
 
 from followbot.schemas import LaserScan, PersonCandidates
-
-from .core import LegDetector
+from followbot.services.laser_legs.core import LegDetector
 
 __all__ = [
     "HELD_OUT_NEGATIVE_TOPICS",

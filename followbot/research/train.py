@@ -1,4 +1,4 @@
-"""Train the ``learned`` leg classifier: ``python -m followbot.services.laser_legs.train``.
+"""Train the ``learned`` leg classifier: ``python -m followbot.research.train``.
 
 Reproducible (fixed seeds, fixed data split); writes the model shipped with the package,
 ``services/laser_legs/models/learned_rtrees.yml.gz``, and prints the cross-validation figures
@@ -69,8 +69,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .background import StaticBackground
-from .detectors.learned import (
+from followbot.research.realdata import (
+    MATCH_RADIUS_M,
+    TRAIN_NEGATIVE_TOPICS,
+    TRAIN_POSITIVES,
+    read_negative,
+    read_positive,
+)
+from followbot.services.laser_legs.background import StaticBackground
+from followbot.services.laser_legs.detectors.learned import (
     FEATURES,
     LearnedSettings,
     LegTracks,
@@ -80,13 +87,6 @@ from .detectors.learned import (
     segments,
     select_legs,
     vote_share,
-)
-from .realdata import (
-    MATCH_RADIUS_M,
-    TRAIN_NEGATIVE_TOPICS,
-    TRAIN_POSITIVES,
-    read_negative,
-    read_positive,
 )
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """Pictures of the simulator for docs/scenarios.md: camera frames and top-down plots.
 
-    python -m followbot.services.sim.render_docs            # writes docs/img/*.png
-    python -m followbot.services.sim.render_docs --out DIR
+    python -m followbot.research.render_docs            # writes docs/img/*.png
+    python -m followbot.research.render_docs --out DIR
 
 Deterministic: each picture comes from a fixed scenario, seed and instant. Where the scenario
 is about following, the robot is steered by a stand-in for the pipeline that reads the ground
@@ -22,9 +22,8 @@ import cv2
 import numpy as np
 
 from followbot.schemas import GroundTruth, LaserScan
-
-from .scenario import load_builtin
-from .simulation import Simulation
+from followbot.services.sim.scenario import load_builtin
+from followbot.services.sim.simulation import Simulation
 
 __all__ = ["FRAMES", "PLOTS", "main", "render_frame", "render_plot", "truth_follower"]
 

@@ -1,9 +1,9 @@
 """Evaluation of the verifiers in the simulator, and of the histograms on real footage.
 
-    python -m followbot.services.vision_verify.evaluate sim [--verifier NAME ...]
+    python -m followbot.research.vision_evaluate sim [--verifier NAME ...]
         [--scenario NAME ...] [--threshold D] [--json FILE]
-    python -m followbot.services.vision_verify.evaluate calibrate [--verifier NAME ...]
-    python -m followbot.services.vision_verify.evaluate vtest PATH/TO/vtest.avi
+    python -m followbot.research.vision_evaluate calibrate [--verifier NAME ...]
+    python -m followbot.research.vision_evaluate vtest PATH/TO/vtest.avi
 
 ``sim``: two test scenes. In both the robot stands still until the model is built from frame
 and laser differencing (thesis 4.2). In ``thesis_5_2_4_two_people`` a follower driven by
@@ -142,10 +142,15 @@ def evaluate_sim(
     from followbot.services.laser_legs.detectors.thesis import ClusterLegDetector, ThesisSettings
     from followbot.services.sim.scenario import load_builtin
     from followbot.services.sim.simulation import Simulation
-
-    from .core import Camera, ImageFeatures, adapt_features, confident, judge
-    from .model import ModelBuilder, build_model
-    from .verifiers import make_verifier
+    from followbot.services.vision_verify.core import (
+        Camera,
+        ImageFeatures,
+        adapt_features,
+        confident,
+        judge,
+    )
+    from followbot.services.vision_verify.model import ModelBuilder, build_model
+    from followbot.services.vision_verify.verifiers import make_verifier
 
     spec = load_builtin(scenario)
     if swap_target:
@@ -213,7 +218,7 @@ def evaluate_sim(
             score.judge_ms.append((time.perf_counter() - t0) * 1e3)
             _score_scan(score, j, xy, tr, target_id, threshold)
             if adapt_rate > 0:
-                from .core import choose
+                from followbot.services.vision_verify.core import choose
 
                 ch = choose(j.distances, threshold)
                 if confident(j.distances, ch, 0.5 * threshold, 0.2):
@@ -248,7 +253,7 @@ def _shared_width(rect, others) -> float:
 
 
 def _score_scan(score: SimScore, j, xy, truth, target_id: int, threshold) -> None:
-    from .core import choose
+    from followbot.services.vision_verify.core import choose
 
     owners = _owner(xy, truth)
     target = next(p for p in truth.people if p.id == target_id)
@@ -330,7 +335,7 @@ def pedestrian_boxes(prev_grey, grey, *, threshold: float = 30.0, min_area_px: i
     threshold is lower than the thesis's 80 and blobs are kept apart)."""
     import cv2
 
-    from .model import smooth_grey
+    from followbot.services.vision_verify.model import smooth_grey
 
     d = cv2.absdiff(smooth_grey(prev_grey), smooth_grey(grey))
     mask = (d > threshold).astype(np.uint8)
@@ -356,7 +361,7 @@ def evaluate_vtest(path: str, max_frames: int = 400) -> dict:
     """Histogram distances of the same pedestrian across frames vs different pedestrians."""
     import cv2
 
-    from .core import ImageFeatures, bhattacharyya
+    from followbot.services.vision_verify.core import ImageFeatures, bhattacharyya
 
     cap = cv2.VideoCapture(path)
     if not cap.isOpened():
@@ -424,7 +429,7 @@ def evaluate_vtest(path: str, max_frames: int = 400) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m followbot.services.vision_verify.evaluate")
+    ap = argparse.ArgumentParser(prog="python -m followbot.research.vision_evaluate")
     sub = ap.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("sim", help="verifiers in the simulator's two-person scenario")
     s.add_argument("--verifier", action="append", default=[])

@@ -7,7 +7,7 @@ the camera sees it (the tracker is measured, not a verifier); ``vision_lag_scans
 The target model is given at the first scan from the truth (thesis 4.2: model construction
 finds the target's laser position).
 
-    python -m followbot.services.tracker.closedloop thesis_5_2_4_two_people --estimator ukf
+    python -m followbot.research.closedloop thesis_5_2_4_two_people --estimator ukf
 
 Metrics follow DESIGN.md "Metric definitions".
 """
@@ -35,10 +35,10 @@ from followbot.schemas import (
 from followbot.services.controller.avoid import scan_points, scan_view
 from followbot.services.controller.core import ControllerSettings, FollowController
 from followbot.services.laser_legs.detectors import make_detector
+from followbot.services.runtime.mount import LaserMount
 from followbot.services.sim.scenario import Scenario, load_builtin
 from followbot.services.sim.simulation import Simulation
-
-from .core import Tracker, TrackerSettings
+from followbot.services.tracker.core import Tracker, TrackerSettings
 
 __all__ = ["Record", "metrics", "run"]
 
@@ -115,7 +115,7 @@ def run(
     sim = Simulation(sc, seed=seed)
     detector = make_detector("thesis")
     settings = msgspec.convert({"estimator": estimator, **(tracker or {})}, TrackerSettings)
-    trk = Tracker(settings)
+    trk = Tracker(settings, sc.laser.mount())
     trk.set_vision_alive(vision != "none")
     ctl = None
     if controller:
@@ -150,7 +150,7 @@ def run(
                     trk.add_verification(_oracle(cands, truth, fov))
                 if ctl is not None:
                     dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
-                    _command(sim, ctl, state, dt, scan, sc.laser.mount_x_m)
+                    _command(sim, ctl, state, dt, scan, sc.laser.mount())
                 if drive is not None:
                     sim.command_velocity(*drive)  # the base is driven; the camera still pans
                 last_stamp = scan.stamp_ns
@@ -174,12 +174,12 @@ def _oracle_model(stamp_ns: int, tgt) -> TargetModel:
     )
 
 
-def _command(sim, ctl, state: TrackState, dt: float, scan: LaserScan, mount_x_m: float) -> None:
+def _command(sim, ctl, state: TrackState, dt: float, scan: LaserScan, mount: LaserMount) -> None:
     """The controller's command for ``state``, sent to the simulated base and camera."""
     pts = view = None
     if ctl.guard is not None:  # the controller's obstacle guard sees the scan
-        pts = scan_points(scan, mount_x_m)
-        view = scan_view(scan, mount_x_m)
+        pts = scan_points(scan, mount)
+        view = scan_view(scan, mount)
     cmd = ctl.on_target(state, dt, pts, view)
     sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
     sim.command_pan(cmd.pan_rad)

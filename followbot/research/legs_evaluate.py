@@ -1,4 +1,4 @@
-"""Real-data table for every leg detector: ``python -m followbot.services.laser_legs.evaluate``.
+"""Real-data table for every leg detector: ``python -m followbot.research.legs_evaluate``.
 
 Leg recall on the labelled positives (a labelled leg is found when a detected leg lies within
 0.15 m) and false person candidates per scan on negative_2 (nobody there), on the held-out
@@ -14,9 +14,7 @@ import argparse
 import logging
 import sys
 
-from .core import LegDetector
-from .detectors import DETECTORS, make_detector
-from .realdata import (
+from followbot.research.realdata import (
     HELD_OUT_NEGATIVE_TOPICS,
     HELD_OUT_POSITIVES,
     NEGATIVE_TOPICS,
@@ -27,7 +25,9 @@ from .realdata import (
     read_positive,
     score,
 )
-from .self_filter import SelfFilteredDetector
+from followbot.services.laser_legs.core import LegDetector
+from followbot.services.laser_legs.detectors import DETECTORS, make_detector
+from followbot.services.laser_legs.self_filter import SelfFilteredDetector
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""Thesis Table 5.1 in the simulator: ``python -m followbot.services.laser_legs.table51``.
+"""Thesis Table 5.1 in the simulator: ``python -m followbot.research.table51``.
 
 Thesis 5.2.1: the robot stands still while a person walks back and forth on an arc of radius
 1.2 m round it; over 1000 scans, the share of scans in which the person yields a two-leg
@@ -23,8 +23,8 @@ import sys
 
 import msgspec
 
-from .core import LegDetector
-from .detectors import make_detector
+from followbot.services.laser_legs.core import LegDetector
+from followbot.services.laser_legs.detectors import make_detector
 
 __all__ = ["Row", "main", "run", "table"]
 

@@ -1,0 +1,383 @@
+"""A verifier that learns who it follows: stripe colour, colour names, texture, an online
+logistic model, and a calibrated probability that a candidate is the target.
+
+Features (one vector per rectangle, :func:`describe_patch`). The rectangle is resized to
+``PATCH_W`` x ``PATCH_H`` pixels (area averaging), so a person far away and one near give
+vectors of the same length and about the same content, and converted to CIE Lab (float).
+
+* *stripes*: the patch is cut into ``STRIPES`` horizontal stripes (head to feet); per stripe the
+  mean a* and b* (chromaticity: a colour's hue and saturation, unchanged by how bright it is
+  lit), the mean L* less the patch's mean L* (which stripes are lighter than the rest: clothes'
+  contrast, not the scene's lighting) and the spread of L* (patterned or plain);
+* *brightness*: the patch's mean L*, once (light or dark clothes; weighted low, it is what
+  lighting changes most);
+* *colour names*: each pixel's soft membership of eleven basic colour names (black, white,
+  grey, red, orange, yellow, green, blue, purple, pink, brown: nearest prototypes in Lab), as
+  shares over three parts (head and shoulders, torso, legs);
+* *texture*: histograms of uniform local binary patterns (8 neighbours, 10 codes) of the upper
+  and lower halves.
+
+Each group is scaled so a typical difference between two people is about 1 per dimension.
+
+Decision. Against the target's look ``mu`` (the mean of the target's stored views), a
+candidate's vector ``x`` gives ``z = |x - mu|`` per dimension, and
+
+    P(target | x) = sigmoid(b - w . z),   w >= 0
+
+a weighted L1 distance turned into a probability. Before any bystander is seen ``w`` and
+``b`` are the prior (:data:`PRIOR_GROUP_WEIGHTS` times ``prior_scale``, ``prior_bias``): a
+generic metric, calibrated once on development footage (docs/vision_verify.md). While
+following, :meth:`OnlineVerifier.update` stores the target's views and the bystanders' (the
+other candidates of the same frames) in two reservoirs (uniform samples of everything seen,
+so early views and distances are not forgotten), and refits ``w, b`` by a class-balanced
+logistic regression pulled towards the prior (``l2``): the dimensions that tell this target
+from these people gain weight, those in which they all look alike lose it. Weights stay
+non-negative, so looking less like the target never makes a candidate more likely to be it.
+The balanced fit keeps ``p = 0.5`` the point where a candidate is as much like the target as
+like the bystanders, on any footage.
+
+The service's distance is ``1 - p`` (``default_threshold`` 0.5 rejects p < 0.5); the
+verification carries ``p`` itself too (``VerifiedCandidate.probability``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Annotated
+
+import cv2
+import msgspec
+import numpy as np
+
+from ..core import ImageFeatures, Model, Rect, View, clip_rect
+
+__all__ = [
+    "FEATURE_DIM",
+    "OnlineSettings",
+    "OnlineVerifier",
+    "describe_patch",
+]
+
+PATCH_W, PATCH_H = 16, 48
+STRIPES = 12
+_CENTRE = (3, 13)  # patch columns of the stripes and colour names (a box's sides are background)
+PARTS = ((0, 10), (10, 26), (26, 48))  # rows of the patch: head and shoulders, torso, legs
+
+# sRGB prototypes of the eleven basic colour names (Berlin and Kay), as Lab below
+_NAMES_RGB = np.array(
+    [
+        (0, 0, 0),  # black
+        (255, 255, 255),  # white
+        (128, 128, 128),  # grey
+        (200, 30, 30),  # red
+        (240, 140, 30),  # orange
+        (230, 220, 50),  # yellow
+        (50, 150, 50),  # green
+        (40, 60, 190),  # blue
+        (120, 50, 150),  # purple
+        (240, 150, 180),  # pink
+        (120, 75, 40),  # brown
+    ],
+    dtype=np.float32,
+)
+N_NAMES = len(_NAMES_RGB)
+_NAME_SIGMA = 18.0  # Lab units: how soft a pixel's membership of the names is
+_LBP_BINS = 10
+
+# feature layout: (group, length, scale dividing the raw values)
+_GROUPS = (
+    ("stripe_ab", 2 * STRIPES, 12.0),
+    ("stripe_l", STRIPES, 10.0),
+    ("stripe_spread", STRIPES, 6.0),
+    ("brightness", 1, 15.0),
+    ("names", N_NAMES * len(PARTS), 0.15),
+    ("texture", 2 * _LBP_BINS, 0.08),
+)
+FEATURE_DIM = sum(n for _, n, _ in _GROUPS)
+
+#: Prior weight per dimension of each group (before any bystander is seen).
+PRIOR_GROUP_WEIGHTS = {
+    "stripe_ab": 1.0,
+    "stripe_l": 0.6,
+    "stripe_spread": 0.3,
+    "brightness": 0.5,
+    "names": 0.5,
+    "texture": 0.2,
+}
+
+
+def _layout() -> tuple[np.ndarray, np.ndarray]:
+    inv_scale, prior = [], []
+    for name, n, scale in _GROUPS:
+        inv_scale += [1.0 / scale] * n
+        prior += [PRIOR_GROUP_WEIGHTS[name]] * n
+    prior_w = np.array(prior, dtype=np.float64)
+    return np.array(inv_scale, dtype=np.float32), prior_w / prior_w.sum()
+
+
+_INV_SCALE, _PRIOR_SHAPE = _layout()
+
+
+def _names_lab() -> np.ndarray:
+    rgb = (_NAMES_RGB / 255.0).reshape(1, -1, 3)
+    return cv2.cvtColor(rgb[..., ::-1].copy(), cv2.COLOR_BGR2Lab).reshape(-1, 3)
+
+
+_NAMES_LAB = _names_lab()
+# uniform LBP: codes with at most two 0/1 transitions around the circle map to their number
+# of ones (0..8), every other code to 9
+_LBP_LUT = np.array(
+    [
+        bin(c).count("1")
+        if bin(c ^ (((c << 1) | (c >> 7)) & 0xFF)).count("1") <= 2
+        else _LBP_BINS - 1
+        for c in range(256)
+    ],
+    dtype=np.uint8,
+)
+_LBP_OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1))
+
+
+def describe_patch(bgr: np.ndarray) -> np.ndarray:
+    """The scaled feature vector (``FEATURE_DIM`` float32) of a BGR patch of a whole person."""
+    if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.shape[0] < 2 or bgr.shape[1] < 2:
+        raise ValueError(f"expected an h x w x 3 patch of at least 2 x 2 pixels, got {bgr.shape}")
+    small = cv2.resize(bgr, (PATCH_W, PATCH_H), interpolation=cv2.INTER_AREA)
+    lab = cv2.cvtColor(small.astype(np.float32) * np.float32(1 / 255), cv2.COLOR_BGR2Lab)
+    centre = lab[:, _CENTRE[0] : _CENTRE[1]]  # the body's columns, less the background's
+    L, ab = centre[..., 0], centre[..., 1:]
+    rows, cols = PATCH_H // STRIPES, _CENTRE[1] - _CENTRE[0]
+    stripes_ab = ab.reshape(STRIPES, rows * cols, 2).mean(axis=1).ravel()
+    L_stripes = L.reshape(STRIPES, rows * cols)
+    mean_L = float(L.mean())
+    stripe_l = L_stripes.mean(axis=1) - mean_L
+    spread = lab[..., 0].reshape(STRIPES, rows * PATCH_W).std(axis=1)
+    # soft colour names: Gaussian membership of each pixel in each prototype
+    d2 = ((lab.reshape(-1, 1, 3) - _NAMES_LAB.reshape(1, -1, 3)) ** 2).sum(axis=2)
+    m = np.exp(-(d2 - d2.min(axis=1, keepdims=True)) / (2 * _NAME_SIGMA**2))
+    m /= m.sum(axis=1, keepdims=True)
+    m = m.reshape(PATCH_H, PATCH_W, N_NAMES)
+    names = np.concatenate([m[a:b].mean(axis=(0, 1)) for a, b in PARTS])
+    # uniform LBP on the grey patch (inner pixels)
+    grey = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY).astype(np.int16)
+    centre = grey[1:-1, 1:-1]
+    code = np.zeros(centre.shape, dtype=np.uint8)
+    h, w = grey.shape
+    for bit, (dy, dx) in enumerate(_LBP_OFFSETS):
+        nb = grey[1 + dy : h - 1 + dy, 1 + dx : w - 1 + dx]
+        code |= (nb >= centre).astype(np.uint8) << bit
+    u = _LBP_LUT[code]
+    half = u.shape[0] // 2
+    tex = np.concatenate(
+        [
+            np.bincount(u[:half].ravel(), minlength=_LBP_BINS) / max(1, u[:half].size),
+            np.bincount(u[half:].ravel(), minlength=_LBP_BINS) / max(1, u[half:].size),
+        ]
+    )
+    x = np.concatenate([stripes_ab, stripe_l, spread, [mean_L], names, tex]).astype(np.float32)
+    return x * _INV_SCALE
+
+
+class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    default_threshold: Annotated[float, msgspec.Meta(gt=0, lt=1)] = 0.5
+    """Rejection threshold on the distance 1 - p: 0.5 rejects a candidate less likely than
+    not to be the target."""
+    prior_scale: Annotated[float, msgspec.Meta(gt=0)] = 10.0
+    """The prior metric's slope: logit = prior_bias - prior_scale * (weighted mean of z)."""
+    prior_bias: float = 4.5
+    """The prior's logit at z = 0 (a candidate exactly like the target's look)."""
+    target_views: Annotated[int, msgspec.Meta(ge=1, le=256)] = 32
+    """Views of the target kept (a uniform sample of all seen)."""
+    bystander_views: Annotated[int, msgspec.Meta(ge=1, le=512)] = 96
+    """Views of bystanders kept (a uniform sample of all seen)."""
+    l2: Annotated[float, msgspec.Meta(ge=0)] = 0.05
+    """Pull of the fitted weights towards the prior (per view, on squared differences)."""
+    iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 40
+    """Gradient steps of each refit."""
+
+
+_FEATURES = ("target_views", "state")  # and bystander_views once any is seen
+# state: [target views seen, bystander views seen, bias, w_1 .. w_D]
+_STATE_LEN = 3 + FEATURE_DIM
+
+
+class OnlineVerifier:
+    """Stripe colour, colour names and texture, with a per-target online logistic model."""
+
+    name = "online"
+    settings_type = OnlineSettings
+    calibrated = True
+    """Its distance is 1 - P(target) (the service reports the probability too)."""
+
+    def __init__(self, settings: OnlineSettings | None = None) -> None:
+        self.settings = settings or OnlineSettings()
+        self.default_threshold = self.settings.default_threshold
+        self._prior_w = (self.settings.prior_scale * _PRIOR_SHAPE).astype(np.float32)
+
+    # ------------------------------------------------------------------ features
+
+    def features(self, frame: ImageFeatures, rect: Rect) -> np.ndarray | None:
+        """The feature vector of ``rect`` in ``frame`` (cached per frame); None when the
+        rectangle has under 2 x 2 pixels inside the image."""
+        r = clip_rect(rect, frame.width, frame.height)
+        if r is None:
+            return None
+        cache = frame.cache.setdefault("online_features", {})
+        x = cache.get(r)
+        if x is None:
+            x0, y0, x1, y1 = r
+            x = cache[r] = describe_patch(frame.bgr[y0:y1, x0:x1])
+        return x
+
+    # ------------------------------------------------------------------ the Verifier protocol
+
+    def learn(self, frame: ImageFeatures, rect: Rect, view: View) -> dict[str, np.ndarray]:
+        x = self.features(frame, rect)
+        if x is None:
+            raise ValueError(f"rectangle {rect} has no pixels inside the image")
+        state = np.zeros(_STATE_LEN, dtype=np.float32)
+        state[0] = 1
+        state[2] = self.settings.prior_bias
+        state[3:] = self._prior_w
+        # no bystander_views until one is seen (an empty array cannot travel)
+        return {"target_views": x.reshape(1, -1).copy(), "state": state}
+
+    def describe(self, frame: ImageFeatures, rect: Rect) -> None:
+        return None  # no blending: the online model learns through update()
+
+    def check_model(self, model: Model) -> None:
+        """ValueError unless the features are what :meth:`learn` and :meth:`update` give."""
+        f = model.features
+        for k in _FEATURES:
+            if k not in f:
+                raise ValueError(f"no {k!r} feature")
+            if f[k].dtype.kind != "f":
+                raise ValueError(f"{k!r} is {f[k].dtype}, expected float")
+        t, b, state = f["target_views"], f.get("bystander_views"), f["state"]
+        for k, a, most in (
+            ("target_views", t, self.settings.target_views),
+            ("bystander_views", b, self.settings.bystander_views),
+        ):
+            if a is None:
+                continue
+            if (
+                a.dtype.kind != "f"
+                or a.ndim != 2
+                or a.shape[1] != FEATURE_DIM
+                or not 1 <= a.shape[0] <= 512
+            ):
+                raise ValueError(
+                    f"{k!r} has shape {a.shape}, expected up to {most} rows of {FEATURE_DIM}"
+                )
+        if state.shape != (_STATE_LEN,):
+            raise ValueError(f"'state' has shape {state.shape}, expected ({_STATE_LEN},)")
+        if (state[3:] < 0).any():
+            raise ValueError("'state' holds negative weights")
+
+    def probabilities(self, xs: np.ndarray, features: dict[str, np.ndarray]) -> np.ndarray:
+        """P(target) of each row of ``xs`` under the model ``features``."""
+        mu = features["target_views"].mean(axis=0)
+        state = features["state"]
+        z = np.abs(xs - mu)
+        logit = float(state[2]) - z @ state[3:]
+        return 1.0 / (1.0 + np.exp(-np.clip(logit, -30, 30)))
+
+    def distances(
+        self, frame: ImageFeatures, views: Sequence[View], model: Model
+    ) -> list[float | None]:
+        if "target_views" not in model.features or "state" not in model.features:
+            raise ValueError("the model has no target_views/state features (not an online model)")
+        xs, where = [], []
+        for i, v in enumerate(views):
+            x = self.features(frame, v.rect) if v.ok and v.rect is not None else None
+            if x is not None:
+                xs.append(x)
+                where.append(i)
+        out: list[float | None] = [None] * len(views)
+        if xs:
+            p = self.probabilities(np.stack(xs), model.features)
+            for i, pi in zip(where, p.tolist(), strict=True):
+                out[i] = 1.0 - pi
+        return out
+
+    # ------------------------------------------------------------------ learning
+
+    def update(
+        self, frame: ImageFeatures, views: Sequence[View], target: int, model: Model
+    ) -> dict[str, np.ndarray] | None:
+        """The model's features after seeing ``views[target]`` as the target and every other
+        view in view as a bystander (a new dict; the model's arrays are not changed). None
+        when the target's view has no pixels."""
+        tv = views[target]
+        x_t = self.features(frame, tv.rect) if tv.rect is not None else None
+        if x_t is None:
+            return None
+        f = model.features
+        state = f["state"].copy()
+        s = self.settings
+        targets, n_t = _reservoir(f["target_views"], x_t[None], int(state[0]), s.target_views)
+        others = [
+            x
+            for i, v in enumerate(views)
+            if i != target and v.ok and v.rect is not None
+            for x in [self.features(frame, v.rect)]
+            if x is not None
+        ]
+        bystanders = f.get("bystander_views", np.zeros((0, FEATURE_DIM), np.float32))
+        n_b = int(state[1])
+        if others:
+            bystanders, n_b = _reservoir(bystanders, np.stack(others), n_b, s.bystander_views)
+        state[0], state[1] = n_t, n_b
+        learnt = {"target_views": targets, "state": state}
+        if len(bystanders):
+            state[2], state[3:] = self._fit(targets, bystanders, state[2], state[3:])
+            learnt["bystander_views"] = bystanders
+        return learnt
+
+    def _fit(
+        self, targets: np.ndarray, bystanders: np.ndarray, bias: float, w: np.ndarray
+    ) -> tuple[float, np.ndarray]:
+        """Class-balanced logistic regression on z = |x - mu|, warm-started at (bias, w),
+        pulled towards the prior, weights kept non-negative (projected gradient descent)."""
+        s = self.settings
+        n = len(targets)
+        total = targets.sum(axis=0)
+        # each target view against the mean of the others (not of itself)
+        others = (total - targets) / (n - 1) if n > 1 else targets
+        z_pos = np.abs(targets - others)
+        z_neg = np.abs(bystanders - total / n)
+        z = np.concatenate([z_pos, z_neg]).astype(np.float64)
+        y = np.concatenate([np.ones(len(z_pos)), np.zeros(len(z_neg))])
+        weight = np.concatenate(
+            [np.full(len(z_pos), 0.5 / len(z_pos)), np.full(len(z_neg), 0.5 / len(z_neg))]
+        )
+        w0 = self._prior_w.astype(np.float64)
+        b0 = s.prior_bias
+        w, b = w.astype(np.float64), float(bias)
+        # step size from a bound on the loss's curvature (z's largest row norm squared / 4)
+        lip = 0.25 * float((z * z).sum(axis=1).max() + 1.0) + 2 * s.l2
+        step = 1.0 / lip
+        for _ in range(s.iterations):
+            p = 1.0 / (1.0 + np.exp(-np.clip(b - z @ w, -30, 30)))
+            g = weight * (p - y)  # d loss / d logit
+            grad_w = -(z.T @ g) + 2 * s.l2 * (w - w0)
+            grad_b = float(g.sum()) + 2 * s.l2 * (b - b0)
+            w = np.maximum(0.0, w - step * grad_w)
+            b -= step * grad_b
+        return b, w.astype(np.float32)
+
+
+def _reservoir(bank: np.ndarray, new: np.ndarray, seen: int, size: int) -> tuple[np.ndarray, int]:
+    """``bank`` (a uniform sample of the ``seen`` rows so far) with the rows of ``new`` added
+    by reservoir sampling, at most ``size`` rows; a new array and the new count. The draws are
+    seeded by the count, so the same inputs give the same bank."""
+    rows = list(bank)
+    for x in new:
+        seen += 1
+        if len(rows) < size:
+            rows.append(x)
+        else:
+            j = int(np.random.default_rng(seen).integers(seen))
+            if j < size:
+                rows[j] = x
+    return np.array(rows, dtype=np.float32).reshape(-1, FEATURE_DIM), seen

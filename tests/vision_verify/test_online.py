@@ -1,0 +1,154 @@
+"""The online verifier: it learns to tell the target from the bystanders it has seen."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+
+from followbot.services.vision_verify.core import (
+    Camera,
+    ImageFeatures,
+    InvalidModel,
+    Model,
+    View,
+    checked_model,
+)
+from followbot.services.vision_verify.footage import evaluate, read_boxes
+from followbot.services.vision_verify.verifiers import make_verifier
+from followbot.services.vision_verify.verifiers.online import FEATURE_DIM
+
+from .helpers import HOW, opencv_sample
+
+W, H = 320, 240
+RNG = np.random.default_rng(7)
+
+
+def person(top_bgr, legs_bgr, noise=12.0):
+    """A 40 x 120 pixel person: a shirt over trousers, on a grey wall, with sensor noise."""
+    px = np.full((120, 40, 3), 128.0)
+    px[10:60, 6:34] = top_bgr
+    px[60:115, 8:32] = legs_bgr
+    px[0:12, 14:26] = (90, 120, 170)  # head
+    px += RNG.normal(0.0, noise, px.shape)
+    return np.clip(px, 0, 255).astype(np.uint8)
+
+
+# the target and a bystander dressed alike (same shirt, trousers a shade apart), and a
+# third person dressed differently
+TARGET = ((40, 40, 190), (120, 70, 40))
+LOOKALIKE = ((40, 40, 190), (100, 100, 60))
+OTHER = ((60, 170, 60), (40, 40, 40))
+
+
+def frame_of(*people):
+    """A frame with the people side by side (x0 = 20, 100, 180, ...), and their views."""
+    img = np.full((H, W, 3), 128, dtype=np.uint8)
+    views = []
+    for i, look in enumerate(people):
+        x0 = 20 + 80 * i
+        img[60:180, x0 : x0 + 40] = person(*look)
+        rect = (x0, 60, x0 + 40, 180)
+        views.append(View(index=i, x_m=3.0, y_m=0.5 * i, depth_m=3.0, rect=rect))
+    return ImageFeatures(img), views
+
+
+def model_of(v, frame, view, model_id=1):
+    return Model(
+        model_id=model_id, verifier=v.name, x_m=3.0, y_m=0.0, depth_m=3.0,
+        rect_w_px=40.0, rect_h_px=120.0, image_width=W, image_height=H,
+        features=v.learn(frame, view.rect, view),
+    )  # fmt: skip
+
+
+def probabilities(v, model, *people):
+    frame, views = frame_of(*people)
+    return [1.0 - d for d in v.distances(frame, views, model)]
+
+
+def test_it_learns_to_reject_a_lookalike_and_keeps_accepting_the_target():
+    v = make_verifier("online")
+    frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
+    model = model_of(v, frame, views[0])
+    before = probabilities(v, model, TARGET, LOOKALIKE, OTHER)
+    assert before[2] < 0.5 < before[0]  # from one view: the other person is rejected
+    for _ in range(20):  # following: the target with the lookalike beside it
+        frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
+        model = msgspec.structs.replace(model, features=v.update(frame, views, 0, model))
+    after = probabilities(v, model, TARGET, LOOKALIKE, OTHER)
+    assert after[1] < 0.5 < after[0]
+    assert after[1] < before[1] - 0.2  # it learnt what tells the two apart
+    assert after[0] - after[1] > before[0] - before[1]
+
+
+def test_the_output_is_a_probability_and_update_leaves_the_old_model_alone():
+    v = make_verifier("online")
+    frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
+    model = model_of(v, frame, views[0])
+    kept = {k: a.copy() for k, a in model.features.items()}
+    learnt = v.update(frame, views, 0, model)
+    for k, a in kept.items():
+        np.testing.assert_array_equal(model.features[k], a)  # a snapshot stays what it was
+    assert learnt["target_views"].shape == (2, FEATURE_DIM)
+    assert learnt["bystander_views"].shape == (2, FEATURE_DIM)
+    model.features = learnt
+    for look in (TARGET, LOOKALIKE, OTHER, ((0, 0, 0), (0, 0, 0)), ((255,) * 3, (255,) * 3)):
+        (p,) = probabilities(v, model, look)
+        assert 0.0 <= p <= 1.0
+
+
+def test_bad_boxes_are_not_judged_and_bad_models_are_refused():
+    v = make_verifier("online")
+    frame, views = frame_of(TARGET, OTHER)
+    model = model_of(v, frame, views[0])
+    bad = [
+        View(index=0, x_m=3.0, y_m=0.0, rect=(50, 50, 50, 90)),  # empty
+        View(index=1, x_m=3.0, y_m=0.0, rect=(400, 10, 460, 90)),  # outside the image
+        View(index=2, x_m=3.0, y_m=0.0, rect=None, status="behind"),
+        views[1],
+    ]
+    d = v.distances(frame, bad, model)
+    assert d[:3] == [None, None, None] and 0.0 <= d[3] <= 1.0
+    assert v.update(frame, bad, 0, model) is None  # no pixels of the target: nothing learnt
+    with pytest.raises(ValueError, match="no pixels"):
+        v.learn(frame, (400, 10, 460, 90), bad[1])
+    # a model of another size, or with negative weights, is refused before it is used
+    camera = Camera(width=W, height=H)
+    good = model.to_message()
+    assert checked_model(good, v, [camera]).features["state"].shape == (3 + FEATURE_DIM,)
+    wrong = dict(model.features, target_views=np.zeros((2, 5), np.float32))
+    state = model.features["state"].copy()
+    state[5] = -1.0
+    for features, match in ((wrong, "target_views"), ({**model.features, "state": state}, "neg")):
+        broken = msgspec.structs.replace(model, features=features)
+        with pytest.raises(InvalidModel, match=match):
+            checked_model(broken.to_message(), v, [camera])
+    with pytest.raises(InvalidModel, match="image"):
+        checked_model(good, v, [Camera(width=640, height=480)])
+
+
+_PETS09 = Path(__file__).resolve().parents[2].parent / "shared/data/pets09/S2L1_frames_000-399.csv"
+
+
+def test_on_pets09_following_beats_one_view_and_the_histogram():
+    video = opencv_sample("vtest.avi")
+    if video is None:
+        pytest.skip(f"opencv-doc's vtest.avi {HOW}")
+    if not _PETS09.is_file():
+        pytest.skip(f"the pets09 boxes are not at {_PETS09}")
+    boxes = read_boxes(_PETS09)
+    figures = {}
+    for name in ("online", "histogram"):
+        report = evaluate(video, boxes, make_verifier(name), lags=(25,), frames=(0, 150))
+        figures[name] = {r["protocol"]: r for r in report.summary()["results"]}
+    online, histogram = figures["online"], figures["histogram"]
+    assert online["following"]["choices"] > 500
+    assert online["following"]["rank1"] > online["one view"]["rank1"]
+    assert online["following"]["rank1"] > histogram["following"]["rank1"]
+    # with what it learnt, a bystander is accepted less often than by the histogram
+    assert (
+        online["following"]["accepted_without_target"]
+        < histogram["following"]["accepted_without_target"]
+    )
