@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from followbot.zhuang_experiments import run_experiment
+from followbot.research.zhuang_experiments import run_experiment
 
 
 def test_fixating_the_robot_turns_to_keep_the_walking_person_near_the_dead_band():

@@ -1,5 +1,5 @@
 """Seed 001's two experiments replayed in the simulator, in one process (no Zenoh):
-``python -m followbot.zhuang_experiments --output docs/img``.
+``python -m followbot.research.zhuang_experiments --output docs/img``.
 
 Each camera frame of a zhuang_* scenario goes through the camera stage (colour classes and
 regions, services/camera_blobs/core.py), the hybrid filter with the robot's odometry between
@@ -167,7 +167,7 @@ def plot(result: ExperimentResult, width: int, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m followbot.zhuang_experiments",
+        prog="python -m followbot.research.zhuang_experiments",
         description="Replay seed 001's fixating and following experiments in the simulator "
         "(camera stage + hybrid filter + the seed's rule in one process); print figures and "
         "write a plot of estimated against true image column per scenario.",
