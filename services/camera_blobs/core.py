@@ -40,6 +40,7 @@ class BlobSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     hue_margin: Annotated[float, msgspec.Meta(ge=0, le=45)] = 4.0
     """Widening of the learnt hue range on each side, OpenCV hue units (2 deg)."""
     sat_margin: Annotated[float, msgspec.Meta(ge=0, le=128)] = 25.0
+    """Widening of the learnt saturation range on each side (0-255 scale)."""
     min_saturation: Annotated[int, msgspec.Meta(ge=0, le=255)] = 40
     """A learnt colour must be at least this saturated: a grey shirt has no hue to follow."""
     min_value: Annotated[int, msgspec.Meta(ge=0, le=255)] = 30
@@ -47,6 +48,7 @@ class BlobSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     min_area_px: Annotated[int, msgspec.Meta(ge=1)] = 40
     """Smallest region reported, at 320x240 (scaled with the image's area)."""
     max_regions: Annotated[int, msgspec.Meta(ge=1, le=256)] = 32
+    """At most this many regions per frame are reported, the largest."""
 
 
 class ColourModel(msgspec.Struct, frozen=True):
@@ -54,10 +56,15 @@ class ColourModel(msgspec.Struct, frozen=True):
     180), saturation in [``sat_lo``, ``sat_hi``]."""
 
     hue_lo: float
+    """Lower end of the hue range (OpenCV hue, 0-180; above hue_hi when it wraps past red)."""
     hue_hi: float
+    """Upper end of the hue range (OpenCV hue, 0-180)."""
     sat_lo: float
+    """Lowest saturation of the colour (0-255)."""
     sat_hi: float
+    """Highest saturation of the colour (0-255)."""
     min_value: int = 30
+    """Pixels darker than this (V, 0-255) are never the colour: their hue is noise."""
 
 
 def _to_hsv(bgr: np.ndarray) -> np.ndarray:

@@ -40,7 +40,9 @@ class GroundCamera(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     horizontal field of view, 1.0 m high, level)."""
 
     width: int = 320
+    """Image width, pixels."""
     height: int = 240
+    """Image height, pixels."""
     hfov_deg: float = 47.5
     """Horizontal field of view; square pixels, so f_cx = f_cy = (width / 2) / tan(hfov / 2)."""
     height_m: float = 1.0
