@@ -10,8 +10,9 @@ Each region ``[x, y, w, h]`` (pixels, (x, y) its centre) becomes one :class:`Can
 <followbot.schemas.Candidate>`: its ``box_px``, and the floor point under the region's bottom
 edge (equations 15-16 through ``camera``, services/runtime/ground_plane.py) as its position,
 range and bearing, in the laser frame like every candidate (turned with ``laser_mount``; the
-tracker turns it back). Regions whose bottom edge is at or above the horizon have no floor
-point and are dropped (counted).
+tracker turns it back). The bottom edge is read on the plane ``region_bottom_m`` above the
+floor (trousers stop short of it). Regions whose bottom edge is at or above the horizon have no
+floor point and are dropped (counted).
 
 Inputs and answers (``answer_on``):
 
@@ -73,6 +74,10 @@ class CameraBlobsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True
     """The camera over the floor (height, elevation, field of view, mount): a region's floor
     point comes from it (equations 15-16). A frame of another size than width x height is read
     as the same camera at that size."""
+    region_bottom_m: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    """How far above the floor a region's bottom edge is (m), its floor point read on that
+    plane: trousers that end well above the shoes. 0: the region reaches the floor (the seed;
+    in the simulator trousers end 0-3 cm above it)."""
     answer_on: Literal["image", "scan"] = "image"
     """image: one answer per camera frame (a robot without a laser). scan: one answer per
     sensors/scan stamp from the newest frame (the lock-step pipeline's clock)."""
@@ -122,6 +127,7 @@ class BlobFinder:
         cam = self.s.camera
         if (frame.width, frame.height) != (cam.width, cam.height):
             cam = cam.scaled(frame.width, frame.height)
+        cam = cam.above_floor(self.s.region_bottom_m)
         b = frame.boxes
         fx, fy = cam.pixel_to_floor(b[:, 0], b[:, 1] + b[:, 3] / 2.0, frame.pan_rad)
         ok = np.isfinite(fx) & np.isfinite(fy)
@@ -250,6 +256,7 @@ def check(settings: CameraBlobsSettings) -> None:
             "height] on the target's clothing in the first frame) or colour (thresholds), "
             "exactly one of them"
         )
+    settings.camera.above_floor(settings.region_bottom_m)  # below the camera
     if settings.learn_rect is not None:
         x0, y0, w, h = settings.learn_rect
         cam = settings.camera

@@ -70,6 +70,13 @@ class GroundCamera(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     def centre(self) -> tuple[float, float]:
         return self.width / 2.0, self.height / 2.0
 
+    def above_floor(self, z_m: float) -> GroundCamera:
+        """The same camera reading pixels as points of the plane ``z_m`` above the floor (the
+        bottom edge of a coloured region that stops short of the floor: trousers over shoes)."""
+        if not 0.0 <= z_m < self.height_m:
+            raise ValueError(f"a plane {z_m} m above the floor: expected 0 <= z < {self.height_m}")
+        return msgspec.structs.replace(self, height_m=self.height_m - z_m)
+
     def scaled(self, width: int, height: int) -> GroundCamera:
         """The same camera delivering ``width`` x ``height`` images (same field of view)."""
         return msgspec.structs.replace(self, width=width, height=height)
