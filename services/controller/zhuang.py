@@ -13,7 +13,8 @@ keep a distance band measured through the floor.
   distances or speeds; the defaults keep the feet in view of a low level camera (below) and
   use the thesis's 0.75 m/s top speed.
 
-The rule returns a wish; followbot's controller applies its limits and watchdog to it.
+The rule returns a wish; followbot's controller (``rule: zhuang``, core.py) applies its limits
+and watchdog to it and holds the camera's pan at 0, as the seed's camera is fixed.
 """
 
 from __future__ import annotations
@@ -37,9 +38,18 @@ class ZhuangSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     # the seed gives no distances: a band a level camera 0.4 m high (a Pioneer 3's top plate)
     # can measure, its floor visible from 1.2 m on
     safe_distance_m: Annotated[float, msgspec.Meta(gt=0)] = 1.5
+    """Nearer than this (m, from the camera) the robot backs off (limits.reverse permitting)."""
     max_distance_m: Annotated[float, msgspec.Meta(gt=0)] = 2.5
+    """Farther than this (m, from the camera) the robot moves forward."""
     forward_mps: Annotated[float, msgspec.Meta(gt=0, le=2)] = 0.75
+    """Forward speed beyond max_distance_m (m/s)."""
     back_mps: Annotated[float, msgspec.Meta(gt=0, le=2)] = 0.2
+    """Backing-off speed inside safe_distance_m (m/s)."""
+    hfov_deg: Annotated[float, msgspec.Meta(gt=1, lt=170)] = 47.5
+    """The camera's horizontal field of view (the simulator's): the target's bearing gives its
+    column in the image through it."""
+    camera_x_m: Annotated[float, msgspec.Meta(ge=-10, le=10)] = 0.0
+    """The camera ahead of the base's origin (m): bearing and distance are taken from it."""
 
     def __post_init__(self) -> None:
         lo, hi = self.dead_band_px
@@ -57,6 +67,18 @@ class ZhuangRule:
 
     def __init__(self, settings: ZhuangSettings | None = None) -> None:
         self.settings = settings or ZhuangSettings()
+
+    def follow(self, x_m: float, y_m: float) -> tuple[float, float]:
+        """(v, w) for a target at (x, y) in the base frame: its column in the seed's 192 px
+        image (a pinhole with ``hfov_deg``) and its distance, both from the camera."""
+        s = self.settings
+        dx = x_m - s.camera_x_m
+        if dx <= 0.0:  # beside or behind the camera: not in the image, turn toward it
+            x_px = 0.0 if y_m < 0 else _SEED_WIDTH_PX
+        else:
+            f = (_SEED_WIDTH_PX / 2.0) / math.tan(math.radians(s.hfov_deg) / 2.0)
+            x_px = _SEED_WIDTH_PX / 2.0 - f * y_m / dx
+        return self.command(x_px, int(_SEED_WIDTH_PX), math.hypot(dx, y_m))
 
     def command(self, x_px: float, image_width: int, distance_m: float) -> tuple[float, float]:
         s = self.settings
