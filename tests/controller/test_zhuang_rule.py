@@ -94,8 +94,8 @@ def test_rule_zhuang_stops_with_the_pan_at_zero_when_lost_even_with_a_place_to_l
     assert all(c.pan_rad == 0.0 for c in cmds)
 
 
-def test_an_unknown_rule_is_refused_naming_the_choices():
+def test_an_unknown_rule_is_refused_naming_the_setting():
     from followbot.services.controller.core import ControllerSettings
 
-    with pytest.raises(msgspec.ValidationError, match="thesis"):
+    with pytest.raises(msgspec.ValidationError, match="rule"):
         msgspec.convert({"rule": "zhang"}, ControllerSettings)
