@@ -205,7 +205,9 @@ def camera_only_settings(spec, settings: dict[str, dict[str, Any]]) -> None:
     zh.setdefault("hfov_deg", c.hfov_deg)
     zh.setdefault("camera_x_m", c.mount_x_m)
     if settings.get("sim", {}).get("mode") == "lockstep":
-        settings["sim"]["stages"] = {
+        settings["sim"]["stages"] = {  # laser_legs publishes the same topic: not awaited
+            "laser_legs": [],
+            "vision_verify": [],
             "camera_blobs": ["perception/candidates"],
             "tracker": ["tracking/target"],
             "controller": ["control/cmd_vel", "control/pan"],

@@ -77,11 +77,16 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     },
     # seed 001: the camera alone -- colour regions (camera_blobs, which needs the target's
     # colour: learn_rect or colour), the hybrid filter, the seed's rule. The first target is
-    # the nearest region ahead; the seed backs off from a near person; the obstacle guard
-    # needs a laser, so it is off (a laser that is present is ignored).
+    # the nearest region of the colour within 8 m ahead (the seed's user marks the target in
+    # view); the seed backs off from a near person; the obstacle guard needs a laser, so it
+    # is off (a laser that is present is ignored).
     "zhuang": {
         "camera_blobs": {},
-        "tracker": {"estimator": "hybrid", "acquire": "nearest"},
+        "tracker": {
+            "estimator": "hybrid",
+            "acquire": "nearest",
+            "identity": {"acquire_range_m": 8.0},
+        },
         "controller": {"rule": "zhuang", "limits": {"reverse": True}, "guard": {"enabled": False}},
     },
 }
