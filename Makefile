@@ -35,6 +35,8 @@ bench: $(STAMP)
 	$(BIN)/python -m followbot.services.controller.bench
 	$(BIN)/python -m followbot.services.vision_verify.bench
 	$(BIN)/python -m followbot.services.sim.bench
+	$(BIN)/python -m followbot.services.camera_blobs.bench
+	$(BIN)/python -m followbot.services.tracker.bench_hybrid
 
 demo: $(STAMP)
 	$(BIN)/followbot demo $(ARGS)

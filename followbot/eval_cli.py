@@ -1,6 +1,7 @@
 """``followbot eval``: scenarios × presets through the real pipeline, in lock-step.
 
     followbot eval --output out/eval                          # every built-in scenario, thesis
+    followbot eval --preset zhuang --output out/zhuang        # seed 001, camera only
     followbot eval --scenario thesis_5_2_4_two_people --scenario my.yaml \\
                    --preset thesis --preset bellotto --output out/eval
 
@@ -10,6 +11,9 @@ writes ``report.md``, ``summary.json`` and PNG plots into the output folder (one
 run holds its logs, settings and MCAP recording). A scenario file that fails validation stops
 everything before any run, with the error naming the field (exit 2). A preset whose parts are
 not installed is reported and skipped.
+
+Without --scenario each preset runs the built-in scenarios written for every preset and those
+naming it (a scenario's ``presets``: the zhuang_* ones are seed 001's, for --preset zhuang).
 """
 
 from __future__ import annotations
@@ -23,10 +27,15 @@ from pathlib import Path
 DEFAULT_PRESETS = ("thesis",)
 
 
-def builtin_scenarios() -> list[str]:
-    from followbot.services.sim.scenario import builtin_names
+def builtin_scenarios(preset: str | None = "thesis") -> list[str]:
+    """The built-in scenarios a run of ``preset`` takes by default: those written for every
+    preset and those naming it (a scenario's ``presets``); None: all of them."""
+    from followbot.services.sim.scenario import builtin_names, load_builtin
 
-    return list(builtin_names())
+    names = list(builtin_names())
+    if preset is None:
+        return names
+    return [n for n in names if not (p := load_builtin(n).presets) or preset in p]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument(
         "--scenario", action="append", metavar="NAME|FILE",
-        help="a built-in scenario name or a scenario file (repeatable; default: all built-in)",
+        help="a built-in scenario name or a scenario file (repeatable; default: the built-in "
+        "ones for each preset)",
     )  # fmt: skip
     p.add_argument(
         "--preset", action="append", choices=sorted(PRESETS),
@@ -57,9 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         "laser_legs, vision_verify, tracker, controller)",
     )  # fmt: skip
     args = p.parse_args(argv)
-    scenarios = args.scenario or builtin_scenarios()
     presets = args.preset or list(DEFAULT_PRESETS)
-    for s in scenarios:  # validate everything before running anything
+    scenarios = {p: args.scenario or builtin_scenarios(p) for p in presets}
+    for s in sorted({s for names in scenarios.values() for s in names}):  # validate first
         try:
             load_scenario_setting(s)
         except (ScenarioError, ValueError) as exc:
@@ -76,14 +86,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def evaluate(scenarios, presets, out: Path, seed, record, run_scenario, run_error) -> int:
+    """Run every scenario with every preset (``scenarios``: a list for all, or preset -> its
+    list); write the report."""
     from followbot.evaluation import compute_metrics, write_report
 
+    if not isinstance(scenarios, dict):
+        scenarios = dict.fromkeys(presets, scenarios)
     out.mkdir(parents=True, exist_ok=True)
     results, failures = [], {}
-    n = len(scenarios) * len(presets)
+    n = sum(len(scenarios[p]) for p in presets)
     i = 0
     for preset in presets:
-        for scenario in scenarios:
+        for scenario in scenarios[preset]:
             i += 1
             name = Path(scenario).stem if scenario.endswith((".yaml", ".yml")) else scenario
             print(f"[{i}/{n}] {name} with preset {preset}", file=sys.stderr, flush=True)

@@ -9,6 +9,7 @@ stages' latency as it sees their answers arrive, and can record everything to MC
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -34,6 +35,8 @@ from followbot.schemas import (
 __all__ = ["RunError", "invalid_stage_settings", "run_scenario"]
 
 STAGES = ("laser_legs", "vision_verify", "tracker", "controller")
+#: Seed 001 (``--preset zhuang``): candidates from the camera alone.
+CAMERA_STAGES = ("camera_blobs", "tracker", "controller")
 #: topic -> (stage whose answer it is, ScanRecord field)
 ANSWERS = {
     "perception/candidates": ("laser_legs", "candidates"),
@@ -122,6 +125,15 @@ def invalid_stage_settings(settings: dict[str, dict[str, Any]]) -> dict[str, str
     }
 
 
+def preset_stages(preset: str) -> tuple[str, ...]:
+    """The stages ``preset`` runs: the laser's four, or seed 001's camera-only three."""
+    from followbot.services.runtime.compose import PRESETS
+
+    if preset not in PRESETS:
+        raise RunError(f"unknown preset {preset!r}; presets: {', '.join(PRESETS)}")
+    return CAMERA_STAGES if "camera_blobs" in PRESETS[preset] else STAGES
+
+
 def stage_settings(
     preset: str, lockstep: bool, *, odometry: bool = True, vision: bool = True
 ) -> dict[str, dict[str, Any]]:
@@ -132,25 +144,33 @@ def stage_settings(
 
     if preset not in PRESETS:
         raise RunError(f"unknown preset {preset!r}; presets: {', '.join(PRESETS)}")
-    out = {s: dict(PRESETS[preset].get(s, {})) for s in STAGES}
-    # thesis 3.3: the model is built at the start, the robot still and the target moving alone
-    out["vision_verify"]["acquire"] = {**out["vision_verify"].get("acquire", {}), "auto": True}
+    stages = preset_stages(preset)
+    out = {s: dict(PRESETS[preset].get(s, {})) for s in stages}
+    if "vision_verify" in out:
+        # thesis 3.3: the model is built at the start, the robot still, the target moving alone
+        vv = out["vision_verify"]
+        vv["acquire"] = {**vv.get("acquire", {}), "auto": True}
     if lockstep:
-        out["vision_verify"]["answer_every_scan"] = True  # rule 2 of the lock-step protocol
+        if "vision_verify" in out:
+            out["vision_verify"]["answer_every_scan"] = True  # rule 2 of the lock-step protocol
+        if "camera_blobs" in out:  # rule 2: one answer per scan, from the frame of its instant
+            out["camera_blobs"].update(answer_on="scan", lockstep_image_wait_s=0.5)
         # rule 5: what a step combines reaches the stage over other links; wait for it
         # criterion 3 gates scan k+1 on the target of scan k
-        out["laser_legs"]["lockstep_target_wait_s"] = 0.5
+        if "laser_legs" in out:
+            out["laser_legs"]["lockstep_target_wait_s"] = 0.5
         if odometry:
-            out["laser_legs"]["lockstep_odometry_wait_s"] = 0.5
+            if "laser_legs" in out:
+                out["laser_legs"]["lockstep_odometry_wait_s"] = 0.5
             out["tracker"]["lockstep_odometry_wait_s"] = 0.5
-        if vision:
+        if vision and "vision_verify" in out:
             out["tracker"]["lockstep_vision_wait_s"] = 1.0
         # the wall-clock watchdog would brake the controller's own state between scans on a
         # slow machine (the sim ignores its commands, but the next command starts from them)
         out["controller"]["stale_after_s"] = 0.0
         out["tracker"]["stale_after_s"] = 0.0
         # the source sets the pace: a recording's gap is no stamp from the future
-        for stage in STAGES:
+        for stage in stages:
             out[stage]["clock"] = {"max_ahead_s": None}
     return out
 
@@ -163,6 +183,64 @@ def sensor_mounts(spec) -> dict[str, Any]:
     if mount.is_identity:
         return {}
     return {"laser_mount": msgspec.to_builtins(mount)}
+
+
+def camera_only_settings(spec, settings: dict[str, dict[str, Any]]) -> None:
+    """Seed 001's stages on scenario ``spec``: its camera (height, field of view, size, rate)
+    for camera_blobs, the hybrid filter and the rule; the colour learnt from a rectangle on the
+    target's trousers in the first frame (what the seed's user drags with the mouse, placed
+    from where the scenario starts the target); the sim's lock-step awaits camera_blobs'
+    candidates instead of laser_legs'."""
+    c = spec.camera
+    if (c.mount_y_m, c.mount_yaw_deg) != (0.0, 0.0):
+        raise RunError(f"{spec.name}: seed 001's camera looks straight ahead from the centre line")
+    cam = {
+        "width": c.width, "height": c.height, "hfov_deg": c.hfov_deg, "height_m": c.height_m,
+        "mount_x_m": c.mount_x_m,
+    }  # fmt: skip
+    blobs = settings["camera_blobs"]
+    blobs.setdefault("camera", cam)
+    blobs.setdefault("image_period_s", 1.0 / c.rate_hz)
+    if "colour" not in blobs:
+        blobs.setdefault("learn_rect", learn_rect(spec))
+    settings["tracker"].setdefault("estimator_settings", {}).setdefault("camera", cam)
+    zh = settings["controller"].setdefault("zhuang", {})
+    zh.setdefault("hfov_deg", c.hfov_deg)
+    zh.setdefault("camera_x_m", c.mount_x_m)
+    if settings.get("sim", {}).get("mode") == "lockstep":
+        settings["sim"]["stages"] = {  # laser_legs publishes the same topic: not awaited
+            "laser_legs": [],
+            "vision_verify": [],
+            "camera_blobs": ["perception/candidates"],
+            "tracker": ["tracking/target"],
+            "controller": ["control/cmd_vel", "control/pan"],
+        }
+
+
+def learn_rect(spec) -> list[float]:
+    """[x0, y0, w, h]: a rectangle on the scenario's target's trousers, 0.3-0.5 m above the
+    floor (where the two legs meet, so no background between them), as the camera sees it at
+    the start."""
+    from followbot.services.runtime.ground_plane import GroundCamera
+
+    c = spec.camera
+    cam = GroundCamera(
+        width=c.width, height=c.height, hfov_deg=c.hfov_deg, height_m=c.height_m,
+        mount_x_m=c.mount_x_m,
+    )  # fmt: skip
+    target = next((p for p in spec.people if p.is_target), None)
+    if target is None:
+        raise RunError(f"{spec.name}: no target to learn a colour from (seed 001)")
+    yaw = math.radians(spec.robot.yaw_deg)
+    dx, dy = target.start[0] - spec.robot.start[0], target.start[1] - spec.robot.start[1]
+    x, y = math.cos(yaw) * dx + math.sin(yaw) * dy, -math.sin(yaw) * dx + math.cos(yaw) * dy
+    u, v = cam.floor_to_pixel(x, y)
+    d = math.hypot(x - c.mount_x_m, y)
+    f = cam.focal_px
+    rect = [float(u) - f * 0.06 / d, float(v) - f * 0.5 / d, f * 0.12 / d, f * 0.2 / d]
+    if not (math.isfinite(rect[0]) and rect[0] >= 0 and rect[0] + rect[2] <= c.width):
+        raise RunError(f"{spec.name}: the target does not start in the camera's view (seed 001)")
+    return [round(v_, 1) for v_ in rect]
 
 
 def apply_stage_overrides(settings: dict[str, dict[str, Any]], overrides: list[str]) -> None:
@@ -218,7 +296,7 @@ def run_scenario(
     endpoint = free_loopback_endpoint()
     robot = f"eval{os.getpid()}x{int(time.monotonic() * 1000) % 100000}"
     lockstep = not realtime
-    stages = [s for s in STAGES if vision or s != "vision_verify"]
+    stages = [s for s in preset_stages(preset) if vision or s != "vision_verify"]
     settings = stage_settings(preset, lockstep, vision=vision)
     if not vision:  # laser only: the target is the nearest person ahead (as followbot track)
         settings["tracker"]["acquire"] = "nearest"
@@ -230,7 +308,9 @@ def run_scenario(
         **({"seed": seed} if seed is not None else {}),
     }
     cam = spec.camera
-    if vision and (cam.mount_x_m, cam.mount_y_m, cam.mount_yaw_deg) != (0.0, 0.0, 0.0):
+    if "camera_blobs" in stages:
+        camera_only_settings(spec, settings)
+    elif vision and (cam.mount_x_m, cam.mount_y_m, cam.mount_yaw_deg) != (0.0, 0.0, 0.0):
         # the camera's own mount, in the base frame as vision_verify's cameras take it
         mount = {"offset_x_m": cam.mount_x_m, "offset_y_m": cam.mount_y_m}
         settings["vision_verify"]["cameras"] = {"default": {**mount, "yaw_deg": cam.mount_yaw_deg}}
@@ -319,6 +399,8 @@ def run_scenario(
             continue
         latency = {}
         for topic, (stage, _) in ANSWERS.items():
+            if stage == "laser_legs" and "camera_blobs" in stages:
+                stage = "camera_blobs"  # the candidates' stage of seed 001
             if stage is None or stage not in stages:
                 continue
             if topic in st.arrived:

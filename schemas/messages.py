@@ -288,7 +288,10 @@ class Leg(msgspec.Struct, kw_only=True):
 
 
 class Candidate(msgspec.Struct, kw_only=True):
-    """A person-like thing in the laser scan (laser frame of the scan)."""
+    """A person-like thing in the laser scan (laser frame of the scan).
+
+    A camera candidate source (camera_blobs) reports the floor point under an image region in
+    the same frame, and the region itself in ``box_px``."""
 
     x_m: Finite
     y_m: Finite
@@ -300,6 +303,14 @@ class Candidate(msgspec.Struct, kw_only=True):
     pattern: Name = ""
     """Detector-specific: two_legs, one_leg, LA, FS, SL, circle, segment, ..."""
     confidence: _Probability = 1.0
+    box_px: Annotated[list[NonNegative], msgspec.Meta(min_length=4, max_length=4)] | None = None
+    """Camera candidates: the image region it was seen as, ``[x, y, w, h]`` in pixels of the
+    frame named by the message's ``image_stamp_ns``, (x, y) its centre (seed 001 3.2). None:
+    not seen in an image (laser candidates)."""
+
+    def __post_init__(self) -> None:
+        if self.box_px is not None:
+            require(self.box_px[2] > 0 and self.box_px[3] > 0, "box_px with zero width or height")
 
 
 class Horizon(msgspec.Struct, kw_only=True):
@@ -341,6 +352,12 @@ class PersonCandidates(Message, tag="person_candidates", kw_only=True):
     thesis's 3.5 m, 4.3.1) or the scan's maximum range, whichever is nearer (laser detectors;
     None: not known). Lets the tracker look for a target that walked out of reach where it
     would come back into it (tracker ``look_within_reach``)."""
+    image_stamp_ns: Stamp = 0
+    """Camera candidate sources: the stamp of the frame the candidates were found in (the
+    newest at or before the scan's stamp); 0: not from an image."""
+    image_width: Annotated[int, msgspec.Meta(ge=0, le=MAX_IMAGE_SIDE)] = 0
+    """Camera candidate sources: that frame's width in pixels (``box_px`` is in its pixels);
+    0: not from an image."""
 
     def __post_init__(self) -> None:
         for c in self.candidates:

@@ -37,7 +37,6 @@ def write(tmp_path: Path, text: str) -> Path:
         ("services: {a: {restart: sometimes}}\n", "services.a.restart"),
         ("services: {a: {hots: x}}\n", "unknown field `hots`"),
         ("preset: tesis\nservices: {a: {}}\n", "preset"),
-        ("preset: zhuang\nservices: {a: {}}\n", "not implemented"),
         ("hosts: {robot: {}}\nservices: {a: {host: robt}}\n", "unknown host 'robt'"),
         ("robot: 'a b'\nservices: {a: {}}\n", "robot"),
         ("- just\n- a list\n", "expected a mapping"),
@@ -263,3 +262,18 @@ def test_no_compose_file_listens_on_every_interface():
     for path in sorted((REPO / "compose").glob("*.yaml")):
         text = path.read_text()
         assert "0.0.0.0" not in text and "[::]" not in text, path
+
+
+def test_preset_zhuang_runs_the_camera_stages_and_needs_the_targets_colour(tmp_path):
+    """Seed 001's preset: camera_blobs, the hybrid estimator and the seed's rule; a file that
+    names no colour to follow is refused before anything starts, saying what to write."""
+    text = "preset: zhuang\nservices:\n  camera_blobs: {}\n  tracker: {}\n  controller: {}\n"
+    c = load_compose(write(tmp_path, text))
+    assert service_settings(c, "tracker")["estimator"] == "hybrid"
+    assert service_settings(c, "controller")["rule"] == "zhuang"
+    out = subprocess.run(
+        [sys.executable, "-m", "followbot", "up", str(write(tmp_path, text)), "--check"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 2
+    assert "camera_blobs" in out.stderr and "learn_rect" in out.stderr

@@ -12,6 +12,8 @@ Rule (from the target's estimate in the base frame of its scan):
 (x, y) is the tracker's filter estimate: the reported position less its lone-leg shift
 (TrackState.shift_*), the point laser_legs gates criterion 3 on.
 
+``rule: zhuang`` replaces the rule by seed 001's (zhuang.py), the camera's pan held at 0.
+
 By status: ``tracking`` applies the rule; ``coasting`` keeps the previous goal (thesis 3.6.2.8:
 fewer than 9 misses keep the previous command); ``lost`` and ``initialising`` stop; the
 watchdog (no fresh target, tracker gone) stops. While lost the camera pans to the person or
@@ -36,7 +38,7 @@ base stops (reason ``no_scan``; turning on the spot and the camera go on).
 from __future__ import annotations
 
 import math
-from typing import Annotated, ClassVar
+from typing import Annotated, ClassVar, Literal
 
 import msgspec
 import numpy as np
@@ -45,6 +47,7 @@ from followbot.schemas import MAX_ANGULAR_RADPS, MAX_LINEAR_MPS, TrackState
 from followbot.services.runtime.settings import removed, renamed
 
 from .guard import Guard, GuardSettings
+from .zhuang import ZhuangRule, ZhuangSettings
 
 __all__ = [
     "RETIRED_SETTINGS",
@@ -176,6 +179,13 @@ class ControllerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unkno
     """The camera's pan."""
     guard: GuardSettings = msgspec.field(default_factory=GuardSettings)
     """The obstacle guard (guard.py, avoid.py)."""
+    rule: Literal["thesis", "zhuang"] = "thesis"
+    """The following rule: thesis (above), or zhuang -- seed 001's: turn by k_p times the
+    target's image column off centre outside a dead band, forward / back by distance bands,
+    the camera's pan held at 0 (zhuang.py; settings under ``zhuang``). Limits and watchdog
+    apply to both."""
+    zhuang: ZhuangSettings = msgspec.field(default_factory=ZhuangSettings)
+    """Seed 001's rule, with ``rule: zhuang``."""
 
 
 class Command(msgspec.Struct, frozen=True):
@@ -209,6 +219,7 @@ class FollowController:
         self.w = 0.0
         self.pan = 0.0
         self._goal = (0.0, 0.0, 0.0)
+        self._zhuang = ZhuangRule(s.zhuang)
         self.guard = (
             Guard(
                 s.guard,
@@ -229,6 +240,11 @@ class FollowController:
         if status == "coasting":
             v, w, pan = self._goal
             return v, w, pan, "coasting"
+        if s.rule == "zhuang":  # seed 001: a fixed camera, pan held at 0
+            if status != "tracking":
+                return 0.0, 0.0, 0.0, status
+            v, w = self._zhuang.follow(target.x_m, target.y_m)
+            return v, w, 0.0, "zhuang"
         looks = target.look_track_id >= 0 or (target.look_x_m, target.look_y_m) != (0.0, 0.0)
         if status == "lost" and s.pan.look_when_lost and looks:
             return 0.0, 0.0, math.atan2(target.look_y_m, target.look_x_m), status  # stop, look

@@ -75,6 +75,20 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "vision_verify": {"verifier": "histogram"},
         "tracker": {"estimator": "kalman_window"},
     },
+    # seed 001: the camera alone -- colour regions (camera_blobs, which needs the target's
+    # colour: learn_rect or colour), the hybrid filter, the seed's rule. The first target is
+    # the nearest region of the colour within 8 m ahead (the seed's user marks the target in
+    # view); the seed backs off from a near person; the obstacle guard needs a laser, so it
+    # is off (a laser that is present is ignored).
+    "zhuang": {
+        "camera_blobs": {},
+        "tracker": {
+            "estimator": "hybrid",
+            "acquire": "nearest",
+            "identity": {"acquire_range_m": 8.0},
+        },
+        "controller": {"rule": "zhuang", "limits": {"reverse": True}, "guard": {"enabled": False}},
+    },
 }
 
 _NAME = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_\-]{1,64}$")]
@@ -151,11 +165,6 @@ def load_compose(path: str | Path) -> Compose:
                 _convert(path, entry, spec_type, f"{section}.{key}")
     compose = _convert(path, data, Compose, "")
     compose.path = str(path)
-    if compose.preset == "zhuang":
-        raise ComposeError(
-            f"{path}: preset: 'zhuang' (seed 001: colour blobs from the camera alone, hybrid "
-            "PF + KF) is not implemented; choose thesis, bellotto, livingston or ristic"
-        )
     _check_processes(path, compose)
     if compose.security is not None:
         try:

@@ -314,6 +314,10 @@ class LightingKey(_Spec):
 class Scenario(_Spec):
     name: Annotated[str, msgspec.Meta(min_length=1, max_length=128)]
     description: str = ""
+    presets: list[Annotated[str, msgspec.Meta(min_length=1, max_length=64)]] = []
+    """The presets the scenario is written for (``followbot eval`` and ``sweep`` run it by
+    default only with them: seed 001's colour scenarios need its colour learning); empty:
+    every preset."""
     duration_s: Annotated[float, msgspec.Meta(gt=0.0, le=1e6)] = 60.0
     seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0
     world: WorldSpec = msgspec.field(default_factory=WorldSpec)

@@ -20,7 +20,7 @@ odometry moves and every output is in:
    the scan the step goes on uncompensated and the status carries the flag ``no_odometry``;
 2. predict every track by the time between the scans, then coast those that missed;
 3. apply the verifications that are due -- they settle *which* track is the target;
-4. associate candidates with tracks;
+4. hand every estimator the scan's candidates (Estimator.observe), associate them with tracks;
 5. update the matched tracks; count a miss on the others; start a track on every unmatched
    candidate; delete the tracks past their misses;
 6. acquire (without vision) or search for a lost target;
@@ -196,6 +196,8 @@ class Tracker:
         prior = self.identity.prior()  # the target before this scan's update (rollback)
         self.identity.apply_vision(pose)  # 3. late vision, as of the scans it names
         self.search.horizon = candidates.horizon
+        for t in self.tracks.values():  # the estimators that weigh every candidate keep them
+            t.estimator.observe(candidates)
         z = np.array([[c.x_m, c.y_m] for c in candidates.candidates], dtype=float).reshape(-1, 2)
         a = self._associator.associate(self.tracks, candidates, z, self.target_id)
         learn = self._update(a, stamp)

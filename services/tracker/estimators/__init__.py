@@ -19,6 +19,7 @@ import numpy as np
 from followbot.services.runtime.plugins import Registry
 
 from .base import Estimator, EstimatorBase, check_estimator, wrap_angle
+from .hybrid import HybridEstimator, HybridSettings
 from .kalman_window import KalmanWindowEstimator, KalmanWindowSettings
 from .nearest import NearestFeatureEstimator, NearestSettings
 from .particle import (
@@ -33,6 +34,8 @@ __all__ = [
     "BUILTIN",
     "Estimator",
     "EstimatorBase",
+    "HybridEstimator",
+    "HybridSettings",
     "KalmanWindowEstimator",
     "KalmanWindowSettings",
     "NearestFeatureEstimator",
@@ -55,6 +58,7 @@ BUILTIN: dict[str, type] = {
     "ukf": UKFEstimator,
     "kalman_window": KalmanWindowEstimator,
     "nearest": NearestFeatureEstimator,
+    "hybrid": HybridEstimator,
 }
 
 registry = Registry("estimators")

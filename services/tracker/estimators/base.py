@@ -6,8 +6,11 @@ An estimator is a small role object (Stone Soup's predictor + updater in one): t
 1. :meth:`Estimator.ego_motion` with the SE(2) change of the robot frame between the previous
    scan and this one (``p1 = R p0 + t``; velocities rotate with ``R``),
 2. :meth:`Estimator.predict` with the time between the scans,
-3. :meth:`Estimator.distance` to gate and associate the scan's candidates,
-4. :meth:`Estimator.update` with the associated candidate's position, if any.
+3. :meth:`Estimator.observe` with all of the scan's candidates (base frame): an estimator
+   whose measurement weighs every candidate (seed 001's hybrid filter weighs each particle by
+   its nearest image region) keeps them for its update; the others ignore them,
+4. :meth:`Estimator.distance` to gate and associate the scan's candidates,
+5. :meth:`Estimator.update` with the associated candidate's position, if any.
 
 ``mean`` (4,) and ``covariance`` (4, 4) are the estimate after the last call. ``gate`` is the
 largest :meth:`distance` an association may have; ``expired`` says when the estimator itself
@@ -30,6 +33,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from followbot.schemas import PersonCandidates
 from followbot.services.common.geometry import wrap_angle
 
 __all__ = ["Estimator", "EstimatorBase", "check_estimator", "wrap_angle"]
@@ -56,6 +60,10 @@ class Estimator(Protocol):
     def ego_motion(self, rotation: np.ndarray, translation: np.ndarray) -> None: ...
 
     def predict(self, dt_s: float, misses: int) -> None: ...
+
+    def observe(self, candidates: PersonCandidates) -> None:
+        """Every candidate of this scan, in the base frame, before association (step 3)."""
+        ...
 
     def distance(self, points: np.ndarray, misses: int) -> np.ndarray:
         """(n,) association distance of each (n, 2) candidate; compared with :meth:`gate`."""
@@ -122,6 +130,7 @@ PROTOCOL = (
     "coasts_in_place",
     "ego_motion",
     "predict",
+    "observe",
     "distance",
     "gate",
     "update",
@@ -153,6 +162,9 @@ class EstimatorBase:
 
     def mean_if(self, point: np.ndarray, noise_scale: float = 1.0) -> np.ndarray | None:
         return None
+
+    def observe(self, candidates: PersonCandidates) -> None:
+        return None  # the associated candidate's position, given to update, is all it needs
 
     def snapshot(self) -> Any:
         return copy.deepcopy(self)

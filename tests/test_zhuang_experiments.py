@@ -1,0 +1,25 @@
+"""Seed 001's experiments replayed in the simulator (camera stage + hybrid filter + rule)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from followbot.research.zhuang_experiments import run_experiment
+
+
+def test_fixating_the_robot_turns_to_keep_the_walking_person_near_the_dead_band():
+    result, width = run_experiment("zhuang_fixating")
+    figs = result.figures(width)
+    assert figs["col_rmse_px"] < 5.0  # the estimate sits on the true column
+    assert result.true_col[0] > 116 * width / 192  # starts right of the band (seed 5.1)
+    k = width / 192
+    late = np.array(result.true_col)[np.array(result.t_s) > 10.0]
+    assert ((late > 70 * k) & (late < 122 * k)).all()  # the robot turned: in or at the band
+    assert figs["frames_on_other_person"] == 0
+
+
+def test_following_in_the_corridor_keeps_the_distance_band():
+    result, width = run_experiment("zhuang_corridor")
+    figs = result.figures(width)
+    assert figs["col_rmse_px"] < 5.0
+    assert figs["distance_in_band_share"] > 0.8
