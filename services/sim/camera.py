@@ -27,6 +27,7 @@ take longer than the whole render).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -316,12 +317,27 @@ class CameraModel:
     # people -----------------------------------------------------------------
 
     def _draw_person(self, img, cam, data, gain) -> None:
-        """Queue the person's polygons (back to front), convert them at once, fill them."""
+        """Paint one person: the quads of legs and upper body back to front (converted to
+        pixels at once), then the head."""
         _, state, look, leg_r = data
-        f, cx, cy, hc = self.focal_px, self.cx, self.cy, self.spec.height_m
-        height = look.height_m
-        z_hip, z_sh = 0.52 * height, 0.82 * height
-        z_head = height - 0.115
+        view = self._person_view(cam, state, look.height_m)
+        pal = self._palette(look, gain)
+        polys = self._leg_quads(view, pal, leg_r)
+        torso = None
+        if view.body[0] >= 0.3:
+            torso = self._torso(view, look)
+            polys += _arm_quads(view, torso, pal)
+            polys += _shirt_quads(view, torso, pal, look.pattern)
+            polys.append(self._neck_quad(view, torso, pal))
+        if polys:
+            flat = np.rint(np.array([pt for pts, _ in polys for pt in pts]) * 16).astype(np.int32)
+            for k, (_, colour) in enumerate(polys):  # every polygon is a quad
+                cv2.fillConvexPoly(img, flat[4 * k : 4 * k + 4], colour, cv2.LINE_8, 4)
+        if torso is not None:
+            self._draw_head(img, view, torso, pal)
+
+    def _person_view(self, cam, state: PersonState, height_m: float) -> _PersonView:
+        """Where the person's body and legs are in the camera frame, and how they are turned."""
         c, s = math.cos(cam[2]), math.sin(cam[2])
         dx, dy = float(state.position[0]) - cam[0], float(state.position[1]) - cam[1]
         body = [c * dx + s * dy, -s * dx + c * dy]
@@ -329,171 +345,245 @@ class CameraModel:
         for lx, ly in state.legs.tolist():
             dx, dy = lx - cam[0], ly - cam[1]
             legs.append([c * dx + s * dy, -s * dx + c * dy])
-        # sideways direction of the body in the camera frame
         rel_h = state.heading_rad - cam[2]
-        side = (-math.sin(rel_h), math.cos(rel_h))
         view = math.atan2(body[1], body[0])
-        facing = math.cos(rel_h - view)  # > 0: walking away from the camera (back visible)
-        px_per_m = f / body[0]
-        detail = px_per_m > 40.0  # far people lose stripes, creases and hands
+        px_per_m = self.focal_px / body[0]
+        return _PersonView(
+            body=body,
+            legs=legs,
+            z_hip=0.52 * height_m,
+            z_shoulder=0.82 * height_m,
+            z_head=height_m - 0.115,
+            rel_heading_rad=rel_h,
+            side=(-math.sin(rel_h), math.cos(rel_h)),
+            view_rad=view,
+            facing=math.cos(rel_h - view),
+            px_per_m=px_per_m,
+            detail=px_per_m > 40.0,  # far people lose stripes, creases and hands
+        )
+
+    def _palette(self, look: AppearanceSpec, gain: float) -> _Palette:
+        """The person's colours as BGR under this lighting gain (shaded variants included)."""
 
         def pal(rgb, k=1.0):
             return self._shade(rgb_to_bgr(rgb), k * gain)
 
-        trousers, trousers_dark = pal(look.trousers_rgb), pal(look.trousers_rgb, 0.8)
-        shirt, shirt_dark = pal(look.shirt_rgb), pal(look.shirt_rgb, 0.78)
-        skin, hair, shoes = pal(look.skin_rgb), pal(look.hair_rgb), pal(look.shoes_rgb)
+        return _Palette(
+            trousers=pal(look.trousers_rgb),
+            trousers_dark=pal(look.trousers_rgb, 0.8),
+            shirt=pal(look.shirt_rgb),
+            shirt_dark=pal(look.shirt_rgb, 0.78),
+            skin=pal(look.skin_rgb),
+            hair=pal(look.hair_rgb),
+            shoes=pal(look.shoes_rgb),
+        )
 
-        polys: list[tuple[list[tuple[float, float]], tuple[int, int, int]]] = []
+    def _pixel(self, pt, z: float) -> tuple[float, float]:
+        """Pixel of a camera-frame floor point ``pt`` raised to height ``z``."""
+        f = self.focal_px
+        return (self.cx - f * pt[1] / pt[0], self.cy - f * (z - self.spec.height_m) / pt[0])
 
-        def P(pt, z):  # camera-frame floor point + height -> pixel
-            return (cx - f * pt[1] / pt[0], cy - f * (z - hc) / pt[0])
-
-        def across(pt, r):  # offsets +-r perpendicular to the sight line
-            n = math.hypot(pt[0], pt[1])
-            ox, oy = -pt[1] / n * r, pt[0] / n * r
-            return (pt[0] + ox, pt[1] + oy), (pt[0] - ox, pt[1] - oy)
-
-        # legs: far one first; each from the leg circle on the floor to its hip joint
-        far_first = sorted(range(2), key=lambda i: -math.hypot(*legs[i]))
+    def _leg_quads(self, view: _PersonView, pal: _Palette, leg_r: float) -> list[_Quad]:
+        """Trouser legs, far one first, each from its leg circle on the floor to its hip joint,
+        with a crease (near people) and a shoe."""
+        P = self._pixel
+        body, side, z_hip = view.body, view.side, view.z_hip
+        polys: list[_Quad] = []
+        far_first = sorted(range(2), key=lambda i: -math.hypot(*view.legs[i]))
         for rank, i in enumerate(far_first):
             sgn = 0.09 if i == 0 else -0.09
             hip = (body[0] + side[0] * sgn, body[1] + side[1] * sgn)
-            foot = legs[i]
+            foot = view.legs[i]
             if foot[0] < 0.2 or hip[0] < 0.2:
                 continue
-            fl, fr = across(foot, leg_r * 1.05)
-            hl, hr = across(hip, leg_r * 1.5)
-            colour = trousers_dark if rank == 0 else trousers
+            fl, fr = _across(foot, leg_r * 1.05)
+            hl, hr = _across(hip, leg_r * 1.5)
+            colour = pal.trousers_dark if rank == 0 else pal.trousers
             polys.append(([P(fl, 0.0), P(fr, 0.0), P(hr, z_hip), P(hl, z_hip)], colour))
-            if detail:  # a crease: a darker strip down one side of the leg
-                fm, _ = across(foot, leg_r * 0.3)
-                hm, _ = across(hip, leg_r * 0.45)
+            if view.detail:  # a crease: a darker strip down one side of the leg
+                fm, _ = _across(foot, leg_r * 0.3)
+                hm, _ = _across(hip, leg_r * 0.45)
                 polys.append(
                     ([P(fl, 0.0), P(fm, 0.0), P(hm, z_hip), P(hl, z_hip)], _shade(colour, 0.8))
                 )
-            polys.append(([P(fl, 0.0), P(fr, 0.0), P(fr, 0.08), P(fl, 0.08)], shoes))
+            polys.append(([P(fl, 0.0), P(fr, 0.0), P(fr, 0.08), P(fl, 0.08)], pal.shoes))
+        return polys
 
-        if body[0] >= 0.3:
-            u0 = cx - f * body[1] / body[0]
-            # body as seen: shoulder width across, ~0.25 m deep
-            half_w = (
-                0.5
-                * px_per_m
-                * max(
-                    look.shoulder_width_m * abs(math.cos(rel_h - view))
-                    + 0.25 * abs(math.sin(rel_h - view)),
-                    0.25,
-                )
+    def _torso(self, view: _PersonView, look: AppearanceSpec) -> _Torso:
+        """The torso's outline in pixels: as wide as the shoulders across, ~0.25 m deep."""
+        body, px_per_m, hc = view.body, view.px_per_m, self.spec.height_m
+        turn = view.rel_heading_rad - view.view_rad
+        half_w = (
+            0.5
+            * px_per_m
+            * max(
+                look.shoulder_width_m * abs(math.cos(turn)) + 0.25 * abs(math.sin(turn)),
+                0.25,
             )
-            v_hip = cy - (z_hip - hc) * px_per_m
-            v_sh = cy - (z_sh - hc) * px_per_m
-            arm = 0.06 * px_per_m
-            for sgn in (-1.0, 1.0):  # arms just outside the torso's edges
-                xo = u0 + sgn * (half_w + arm * 0.6)
-                a0, a1 = xo - arm / 2, xo + arm / 2
-                polys.append(
-                    (
-                        [
-                            (a0, v_sh + arm * 0.3),
-                            (a1, v_sh + arm * 0.3),
-                            (a1, v_hip + arm),
-                            (a0, v_hip + arm),
-                        ],
-                        shirt_dark,
-                    )
-                )
-                if detail:
-                    polys.append(
-                        (
-                            [
-                                (a0, v_hip + arm),
-                                (a1, v_hip + arm),
-                                (a1, v_hip + 2.2 * arm),
-                                (a0, v_hip + 2.2 * arm),
-                            ],
-                            skin,
-                        )
-                    )
-            waist = 0.82 * half_w
-            v_waist = v_hip + 0.05 * px_per_m
-            polys.append(
-                (
-                    [
-                        (u0 - half_w, v_sh),
-                        (u0 + half_w, v_sh),
-                        (u0 + waist, v_waist),
-                        (u0 - waist, v_waist),
-                    ],
-                    shirt,
-                )
-            )
-            for sgn in (-1.0, 1.0):  # the torso is round: darker strips inside both edges
-                polys.append(
-                    (
-                        [
-                            (u0 + sgn * half_w, v_sh),
-                            (u0 + sgn * 0.7 * half_w, v_sh),
-                            (u0 + sgn * 0.7 * waist, v_hip),
-                            (u0 + sgn * waist, v_hip),
-                        ],
-                        shirt_dark,
-                    )
-                )
-            if detail and look.pattern in ("stripes", "checks"):
-                stripe = _shade(shirt, 0.6)
-                n = 5
-                for k in range(n):
-                    va = v_sh + (v_hip - v_sh) * (2 * k + 0.5) / (2 * n)
-                    vb = v_sh + (v_hip - v_sh) * (2 * k + 1.5) / (2 * n)
-                    wa = half_w - (half_w - waist) * (va - v_sh) / (v_hip - v_sh)
-                    wb = half_w - (half_w - waist) * (vb - v_sh) / (v_hip - v_sh)
-                    polys.append(
-                        ([(u0 - wa, va), (u0 + wa, va), (u0 + wb, vb), (u0 - wb, vb)], stripe)
-                    )
-                if look.pattern == "checks":
-                    bw = 0.08 * waist
-                    for frac in (-0.4, 0.0, 0.4):
-                        uc = u0 + frac * waist
-                        polys.append(
-                            (
-                                [
-                                    (uc - bw, v_sh),
-                                    (uc + bw, v_sh),
-                                    (uc + bw, v_hip),
-                                    (uc - bw, v_hip),
-                                ],
-                                stripe,
-                            )
-                        )
-            neck = 0.05 * px_per_m
-            v_neck = cy - (z_head - 0.08 - hc) * px_per_m
-            polys.append(
-                (
-                    [
-                        (u0 - neck, v_neck),
-                        (u0 + neck, v_neck),
-                        (u0 + neck, v_sh + 1),
-                        (u0 - neck, v_sh + 1),
-                    ],
-                    _shade(skin, 0.85),
-                )
-            )
+        )
+        return _Torso(
+            u0=self.cx - self.focal_px * body[1] / body[0],
+            half_w=half_w,
+            waist=0.82 * half_w,
+            v_shoulder=self.cy - (view.z_shoulder - hc) * px_per_m,
+            v_hip=self.cy - (view.z_hip - hc) * px_per_m,
+        )
 
-        if polys:
-            flat = np.rint(np.array([pt for pts, _ in polys for pt in pts]) * 16).astype(np.int32)
-            for k, (_, colour) in enumerate(polys):  # every polygon is a quad
-                cv2.fillConvexPoly(img, flat[4 * k : 4 * k + 4], colour, cv2.LINE_8, 4)
+    def _neck_quad(self, view: _PersonView, torso: _Torso, pal: _Palette) -> _Quad:
+        u0, v_sh = torso.u0, torso.v_shoulder
+        neck = 0.05 * view.px_per_m
+        v_neck = self.cy - (view.z_head - 0.08 - self.spec.height_m) * view.px_per_m
+        quad = [
+            (u0 - neck, v_neck),
+            (u0 + neck, v_neck),
+            (u0 + neck, v_sh + 1),
+            (u0 - neck, v_sh + 1),
+        ]
+        return (quad, _shade(pal.skin, 0.85))
 
-        if body[0] >= 0.3:  # head: hair all round, face when turned towards the camera
-            vh = cy - (z_head - hc) * px_per_m
-            ax_w, ax_h = 0.085 * px_per_m, 0.115 * px_per_m
-            centre = (round(u0 * 16), round(vh * 16))
-            axes = (max(1, round(ax_w * 16)), max(1, round(ax_h * 16)))
-            cv2.ellipse(img, centre, axes, 0, 0, 360, hair, -1, cv2.LINE_8, 4)
-            if facing < 0.5:
-                frac = 0.8 if facing < -0.3 else 0.55
-                turn = 0.0 if facing < -0.3 else 0.2 * ax_w * math.sin(rel_h - view)
-                fc = (round((u0 - turn) * 16), round((vh + 0.25 * ax_h) * 16))
-                fa = (max(1, round(ax_w * frac * 16)), max(1, round(ax_h * 0.75 * 16)))
-                cv2.ellipse(img, fc, fa, 0, 0, 360, skin, -1, cv2.LINE_8, 4)
+    def _draw_head(self, img, view: _PersonView, torso: _Torso, pal: _Palette) -> None:
+        """Hair all round; a face when turned towards the camera (off-centre when half turned)."""
+        px_per_m = view.px_per_m
+        vh = self.cy - (view.z_head - self.spec.height_m) * px_per_m
+        ax_w, ax_h = 0.085 * px_per_m, 0.115 * px_per_m
+        centre = (round(torso.u0 * 16), round(vh * 16))
+        axes = (max(1, round(ax_w * 16)), max(1, round(ax_h * 16)))
+        cv2.ellipse(img, centre, axes, 0, 0, 360, pal.hair, -1, cv2.LINE_8, 4)
+        facing = view.facing
+        if facing < 0.5:
+            frac = 0.8 if facing < -0.3 else 0.55
+            turn = (
+                0.0
+                if facing < -0.3
+                else 0.2 * ax_w * math.sin(view.rel_heading_rad - view.view_rad)
+            )
+            fc = (round((torso.u0 - turn) * 16), round((vh + 0.25 * ax_h) * 16))
+            fa = (max(1, round(ax_w * frac * 16)), max(1, round(ax_h * 0.75 * 16)))
+            cv2.ellipse(img, fc, fa, 0, 0, 360, pal.skin, -1, cv2.LINE_8, 4)
+
+
+_Quad = tuple[list[tuple[float, float]], tuple[int, int, int]]
+"""A filled quad: four pixel corners and a BGR colour."""
+
+
+class _PersonView(NamedTuple):
+    """A person as the camera sees them (camera frame: x forward, y left)."""
+
+    body: list[float]
+    """Body centre on the floor."""
+    legs: list[list[float]]
+    """Leg centres on the floor."""
+    z_hip: float
+    z_shoulder: float
+    z_head: float
+    """Height of the head's centre, m."""
+    rel_heading_rad: float
+    """Body heading relative to the camera's."""
+    side: tuple[float, float]
+    """The body's left, in the camera frame."""
+    view_rad: float
+    """Bearing of the body from the camera."""
+    facing: float
+    """> 0: walking away from the camera (back visible); < 0: facing it."""
+    px_per_m: float
+    """Pixels per metre at the body's depth."""
+    detail: bool
+    """Near enough for stripes, creases and hands."""
+
+
+class _Palette(NamedTuple):
+    """A person's BGR colours under the current lighting."""
+
+    trousers: tuple[int, int, int]
+    trousers_dark: tuple[int, int, int]
+    shirt: tuple[int, int, int]
+    shirt_dark: tuple[int, int, int]
+    skin: tuple[int, int, int]
+    hair: tuple[int, int, int]
+    shoes: tuple[int, int, int]
+
+
+class _Torso(NamedTuple):
+    """The torso's outline in pixels: centre column, half widths at the shoulders and the
+    waist, rows of the shoulders and the hips."""
+
+    u0: float
+    half_w: float
+    waist: float
+    v_shoulder: float
+    v_hip: float
+
+
+def _across(pt, r: float):
+    """The points ``r`` either side of camera-frame ``pt``, perpendicular to the sight line."""
+    n = math.hypot(pt[0], pt[1])
+    ox, oy = -pt[1] / n * r, pt[0] / n * r
+    return (pt[0] + ox, pt[1] + oy), (pt[0] - ox, pt[1] - oy)
+
+
+def _arm_quads(view: _PersonView, torso: _Torso, pal: _Palette) -> list[_Quad]:
+    """Sleeves just outside the torso's edges, and hands below them on near people."""
+    u0, half_w, v_sh, v_hip = torso.u0, torso.half_w, torso.v_shoulder, torso.v_hip
+    arm = 0.06 * view.px_per_m
+    polys: list[_Quad] = []
+    for sgn in (-1.0, 1.0):
+        xo = u0 + sgn * (half_w + arm * 0.6)
+        a0, a1 = xo - arm / 2, xo + arm / 2
+        sleeve = [
+            (a0, v_sh + arm * 0.3),
+            (a1, v_sh + arm * 0.3),
+            (a1, v_hip + arm),
+            (a0, v_hip + arm),
+        ]
+        polys.append((sleeve, pal.shirt_dark))
+        if view.detail:
+            hand = [
+                (a0, v_hip + arm),
+                (a1, v_hip + arm),
+                (a1, v_hip + 2.2 * arm),
+                (a0, v_hip + 2.2 * arm),
+            ]
+            polys.append((hand, pal.skin))
+    return polys
+
+
+def _shirt_quads(view: _PersonView, torso: _Torso, pal: _Palette, pattern: str) -> list[_Quad]:
+    """The shirt: a trapezoid from the shoulders to just below the hips, darker strips inside
+    both edges (the torso is round), and on near people its stripes or checks."""
+    u0, half_w, waist = torso.u0, torso.half_w, torso.waist
+    v_sh, v_hip = torso.v_shoulder, torso.v_hip
+    v_waist = v_hip + 0.05 * view.px_per_m
+    shirt = [(u0 - half_w, v_sh), (u0 + half_w, v_sh), (u0 + waist, v_waist), (u0 - waist, v_waist)]
+    polys: list[_Quad] = [(shirt, pal.shirt)]
+    for sgn in (-1.0, 1.0):
+        edge = [
+            (u0 + sgn * half_w, v_sh),
+            (u0 + sgn * 0.7 * half_w, v_sh),
+            (u0 + sgn * 0.7 * waist, v_hip),
+            (u0 + sgn * waist, v_hip),
+        ]
+        polys.append((edge, pal.shirt_dark))
+    if view.detail and pattern in ("stripes", "checks"):
+        polys += _shirt_pattern(torso, _shade(pal.shirt, 0.6), pattern)
+    return polys
+
+
+def _shirt_pattern(torso: _Torso, stripe: tuple[int, int, int], pattern: str) -> list[_Quad]:
+    """Five horizontal stripes following the shirt's taper; checks add three vertical bars."""
+    u0, half_w, waist = torso.u0, torso.half_w, torso.waist
+    v_sh, v_hip = torso.v_shoulder, torso.v_hip
+    polys: list[_Quad] = []
+    n = 5
+    for k in range(n):
+        va = v_sh + (v_hip - v_sh) * (2 * k + 0.5) / (2 * n)
+        vb = v_sh + (v_hip - v_sh) * (2 * k + 1.5) / (2 * n)
+        wa = half_w - (half_w - waist) * (va - v_sh) / (v_hip - v_sh)
+        wb = half_w - (half_w - waist) * (vb - v_sh) / (v_hip - v_sh)
+        polys.append(([(u0 - wa, va), (u0 + wa, va), (u0 + wb, vb), (u0 - wb, vb)], stripe))
+    if pattern == "checks":
+        bw = 0.08 * waist
+        for frac in (-0.4, 0.0, 0.4):
+            uc = u0 + frac * waist
+            bar = [(uc - bw, v_sh), (uc + bw, v_sh), (uc + bw, v_hip), (uc - bw, v_hip)]
+            polys.append((bar, stripe))
+    return polys

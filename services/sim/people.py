@@ -72,101 +72,141 @@ class Phase:
         return self.t0 + self.duration_s
 
 
+@dataclass(slots=True)
+class _PathEnd:
+    """Where the phases compiled so far leave the person; each step starts from here."""
+
+    t_s: float
+    s_m: float
+    """Distance walked."""
+    p: tuple[float, float]
+    heading_rad: float
+    walking: bool = False
+    """The last phase was a walk (the next stand blends into the stance pose, and back)."""
+
+
 def compile_path(spec: PersonSpec) -> tuple[list[Phase], float]:
     """Compile a person's script into phases; returns (phases, total walked distance)."""
     turn_rate = math.radians(spec.gait.turn_rate_deg_s)
+    start = (float(spec.start[0]), float(spec.start[1]))
+    end = _PathEnd(0.0, 0.0, start, math.radians(spec.heading_deg))
     phases: list[Phase] = []
-    t, s = 0.0, 0.0
-    p = (float(spec.start[0]), float(spec.start[1]))
-    h = math.radians(spec.heading_deg)
-    walking = False
     for step in spec.path:
-        if isinstance(step, WalkStep):
-            d = (step.to[0] - p[0], step.to[1] - p[1])
-            dist = math.hypot(*d)
-            if dist < 1e-9:
-                continue
-            v = step.speed_mps or spec.speed_mps
-            hp = math.atan2(d[1], d[0])
-            phases.append(
-                Phase(
-                    "line",
-                    t,
-                    dist / v,
-                    p,
-                    h,
-                    hp,
-                    v,
-                    s,
-                    turn_rate_radps=turn_rate,
-                    after_stand=not walking,
-                )
-            )
-            t, s, p, h, walking = t + dist / v, s + dist, (step.to[0], step.to[1]), hp, True
-        elif isinstance(step, ArcStep):
-            c = (float(step.centre[0]), float(step.centre[1]))
-            r = math.hypot(p[0] - c[0], p[1] - c[1])
-            sweep = math.radians(step.sweep_deg)
-            if r < 1e-6 or abs(sweep) < 1e-12:
-                continue
-            v = step.speed_mps or spec.speed_mps
-            dist = r * abs(sweep)
-            a0 = math.atan2(p[1] - c[1], p[0] - c[0])
-            sign = 1.0 if sweep > 0 else -1.0
-            phases.append(
-                Phase(
-                    "arc",
-                    t,
-                    dist / v,
-                    p,
-                    h,
-                    a0,
-                    v,
-                    s,
-                    c,
-                    r,
-                    sign,
-                    turn_rate,
-                    after_stand=not walking,
-                )
-            )
-            a1 = a0 + sweep
-            t, s = t + dist / v, s + dist
-            p = (c[0] + r * math.cos(a1), c[1] + r * math.sin(a1))
-            h, walking = wrap_angle(a1 + sign * math.pi / 2), True
-        elif isinstance(step, PauseStep):
-            phases.append(
-                Phase(
-                    "stand",
-                    t,
-                    step.duration_s,
-                    p,
-                    h,
-                    h,
-                    s0_m=s,
-                    after_walk=walking,
-                    turn_rate_radps=turn_rate,
-                )
-            )
-            t, walking = t + step.duration_s, False
-        elif isinstance(step, TurnStep):
-            goal = math.radians(step.heading_deg)
-            dur = abs(wrap_angle(goal - h)) / turn_rate
-            phases.append(
-                Phase(
-                    "stand",
-                    t,
-                    dur,
-                    p,
-                    h,
-                    goal,
-                    s0_m=s,
-                    after_walk=walking,
-                    turn_rate_radps=turn_rate,
-                )
-            )
-            t, h, walking = t + dur, wrap_angle(goal), False
-    return phases, s
+        match step:
+            case WalkStep():
+                phase = _line_phase(end, step, spec.speed_mps, turn_rate)
+            case ArcStep():
+                phase = _arc_phase(end, step, spec.speed_mps, turn_rate)
+            case PauseStep():
+                phase = _pause_phase(end, step, turn_rate)
+            case TurnStep():
+                phase = _turn_phase(end, step, turn_rate)
+            case _:
+                phase = None
+        if phase is not None:
+            phases.append(phase)
+    return phases, end.s_m
+
+
+def _line_phase(
+    end: _PathEnd, step: WalkStep, default_speed_mps: float, turn_rate: float
+) -> Phase | None:
+    """A straight walk to ``step.to``; None (and nothing moves) when already there."""
+    p = end.p
+    d = (step.to[0] - p[0], step.to[1] - p[1])
+    dist = math.hypot(*d)
+    if dist < 1e-9:
+        return None
+    v = step.speed_mps or default_speed_mps
+    hp = math.atan2(d[1], d[0])
+    phase = Phase(
+        "line",
+        end.t_s,
+        dist / v,
+        p,
+        end.heading_rad,
+        hp,
+        v,
+        end.s_m,
+        turn_rate_radps=turn_rate,
+        after_stand=not end.walking,
+    )
+    end.t_s, end.s_m, end.p = end.t_s + dist / v, end.s_m + dist, (step.to[0], step.to[1])
+    end.heading_rad, end.walking = hp, True
+    return phase
+
+
+def _arc_phase(
+    end: _PathEnd, step: ArcStep, default_speed_mps: float, turn_rate: float
+) -> Phase | None:
+    """A walk round ``step.centre`` by ``step.sweep_deg`` (positive: anticlockwise), ending
+    tangent to the circle; None when the person stands on the centre or the sweep is 0."""
+    p = end.p
+    c = (float(step.centre[0]), float(step.centre[1]))
+    r = math.hypot(p[0] - c[0], p[1] - c[1])
+    sweep = math.radians(step.sweep_deg)
+    if r < 1e-6 or abs(sweep) < 1e-12:
+        return None
+    v = step.speed_mps or default_speed_mps
+    dist = r * abs(sweep)
+    a0 = math.atan2(p[1] - c[1], p[0] - c[0])
+    sign = 1.0 if sweep > 0 else -1.0
+    phase = Phase(
+        "arc",
+        end.t_s,
+        dist / v,
+        p,
+        end.heading_rad,
+        a0,
+        v,
+        end.s_m,
+        c,
+        r,
+        sign,
+        turn_rate,
+        after_stand=not end.walking,
+    )
+    a1 = a0 + sweep
+    end.t_s, end.s_m = end.t_s + dist / v, end.s_m + dist
+    end.p = (c[0] + r * math.cos(a1), c[1] + r * math.sin(a1))
+    end.heading_rad, end.walking = wrap_angle(a1 + sign * math.pi / 2), True
+    return phase
+
+
+def _pause_phase(end: _PathEnd, step: PauseStep, turn_rate: float) -> Phase:
+    """Standing still for ``step.duration_s``, heading kept."""
+    phase = Phase(
+        "stand",
+        end.t_s,
+        step.duration_s,
+        end.p,
+        end.heading_rad,
+        end.heading_rad,
+        s0_m=end.s_m,
+        after_walk=end.walking,
+        turn_rate_radps=turn_rate,
+    )
+    end.t_s, end.walking = end.t_s + step.duration_s, False
+    return phase
+
+
+def _turn_phase(end: _PathEnd, step: TurnStep, turn_rate: float) -> Phase:
+    """Turning on the spot to ``step.heading_deg`` the short way round, at the turn rate."""
+    goal = math.radians(step.heading_deg)
+    dur = abs(wrap_angle(goal - end.heading_rad)) / turn_rate
+    phase = Phase(
+        "stand",
+        end.t_s,
+        dur,
+        end.p,
+        end.heading_rad,
+        goal,
+        s0_m=end.s_m,
+        after_walk=end.walking,
+        turn_rate_radps=turn_rate,
+    )
+    end.t_s, end.heading_rad, end.walking = end.t_s + dur, wrap_angle(goal), False
+    return phase
 
 
 @dataclass(frozen=True, slots=True)

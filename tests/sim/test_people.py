@@ -1,3 +1,4 @@
+import itertools
 import math
 
 import msgspec
@@ -5,7 +6,7 @@ import numpy as np
 import pytest
 
 from followbot.services.sim.people import Person
-from followbot.services.sim.scenario import PersonSpec
+from followbot.services.sim.scenario import PersonSpec, builtin_names, load_builtin
 
 
 def _person(**fields) -> Person:
@@ -78,3 +79,56 @@ def test_looping_path_repeats():
     period = p.duration_s
     for t in (0.3, 1.1, 2.9):
         assert p.state(t).position == pytest.approx(p.state(t + 3 * period).position)
+
+
+def _end_heading(ph) -> float:
+    """The heading a compiled phase leaves the person with (the next phase's heading0)."""
+    if ph.kind == "arc":
+        a1 = ph.path_heading_rad + ph.sign * ph.speed_mps * ph.duration_s / ph.radius_m
+        return a1 + ph.sign * math.pi / 2
+    return ph.path_heading_rad  # line: direction of travel; stand: its goal
+
+
+def _assert_phases_join_up(person: Person) -> None:
+    phases = [ph for ph in person.phases if math.isfinite(ph.duration_s)]
+    for prev, ph in itertools.pairwise(phases):
+        assert ph.t0 == pytest.approx(prev.t1, abs=1e-9)
+        assert ph.s0_m == pytest.approx(prev.s0_m + prev.speed_mps * prev.duration_s, abs=1e-9)
+        turn = math.remainder(ph.heading0_rad - _end_heading(prev), math.tau)
+        assert turn == pytest.approx(0.0, abs=1e-9)
+        if ph.kind == "stand":  # the legs blend into the stance pose after a walk, and out
+            assert ph.after_walk == (prev.kind != "stand")
+        else:
+            assert ph.after_stand == (prev.kind == "stand")
+        end = person.state(prev.t1 - 1e-9).position
+        assert person.state(ph.t0).position == pytest.approx(end, abs=1e-6)
+    walked = sum(ph.speed_mps * ph.duration_s for ph in phases)
+    assert person.path_length_m == pytest.approx(walked, abs=1e-9)
+
+
+def test_a_script_compiles_to_phases_that_join_up():
+    """Each phase starts when, where and with the heading and walked distance the previous
+    one leaves; steps that go nowhere (a walk to where the person is, a 0 deg arc) are left
+    out."""
+    p = _person(
+        heading_deg=30.0,
+        path=[
+            {"kind": "walk", "to": [2.0, 0.0]},
+            {"kind": "walk", "to": [2.0, 0.0]},  # already there: no phase
+            {"kind": "arc", "centre": [2.0, 1.0], "sweep_deg": 135.0, "speed_mps": 0.5},
+            {"kind": "arc", "centre": [0.0, 0.0], "sweep_deg": 0.0},  # no phase
+            {"kind": "pause", "duration_s": 1.0},
+            {"kind": "turn", "heading_deg": -120.0},
+            {"kind": "arc", "centre": [0.0, 0.0], "sweep_deg": -90.0},
+            {"kind": "walk", "to": [-1.0, -1.0], "speed_mps": 1.2},
+        ],
+    )
+    assert [ph.kind for ph in p.phases[:-1]] == ["line", "arc", "stand", "stand", "arc", "line"]
+    assert p.phases[2].after_walk and not p.phases[3].after_walk
+    _assert_phases_join_up(p)
+
+
+@pytest.mark.parametrize("name", builtin_names())
+def test_builtin_scripts_compile_to_phases_that_join_up(name):
+    for spec in load_builtin(name).people:
+        _assert_phases_join_up(Person(spec))

@@ -93,6 +93,54 @@ def _running(a: np.ndarray, w: int, op) -> np.ndarray:
     return out
 
 
+_Edge = tuple[str, int, int]
+"""A joined vertical edge: type ("L" or "R"), first and last doublet."""
+_Span = tuple[int, int]
+"""First and last beam of an object, inclusive."""
+_LegFit = tuple[float, float, float]
+"""(x, y, width) of a leg, m."""
+_Part = tuple[_Span, _LegFit]
+_Pattern = tuple[str, list[_Part]]
+"""A pattern's name ("LA", "FS", "SL") and its legs."""
+
+
+class _Spans:
+    """Objects of one scan as beam spans, and the legs they make (raw points, bearings)."""
+
+    def __init__(
+        self, raw: np.ndarray, valid: np.ndarray, angles: np.ndarray, inc: float, lost: int
+    ) -> None:
+        self.raw, self.valid, self.angles = raw, valid, angles
+        self.inc = inc
+        """Beam spacing, rad."""
+        self.lost = lost
+        """Beams the preprocessing takes off each side of an object."""
+
+    def span(self, first: int, last: int) -> _Span | None:
+        """Beams ``first..last``; None when outside the scan or one of them has no return."""
+        if not 0 <= first <= last < self.raw.shape[0] or not self.valid[first : last + 1].all():
+            return None
+        return first, last
+
+    def between(self, left: _Edge, right: _Edge) -> _Span | None:
+        """The object between an L edge and the next R edge: beams (L.last + 1) .. R.first."""
+        return self.span(left[2] + 1, right[1])
+
+    def leg(self, span: _Span) -> _LegFit:
+        """(x, y, width) of the raw points of ``span``: their centroid, and the chord between
+        the end points widened by the beams the preprocessing took off and one beam spacing."""
+        raw, angles = self.raw, self.angles
+        a, b = span
+        rr, aa = raw[a : b + 1], angles[a : b + 1]
+        x = float(np.mean(rr * np.cos(aa)))
+        y = float(np.mean(rr * np.sin(aa)))
+        xa, ya = raw[a] * math.cos(angles[a]), raw[a] * math.sin(angles[a])
+        xb, yb = raw[b] * math.cos(angles[b]), raw[b] * math.sin(angles[b])
+        r_mid = 0.5 * (raw[a] + raw[b])
+        width = math.hypot(xb - xa, yb - ya) + (1 + 2 * self.lost) * r_mid * self.inc
+        return x, y, float(width)
+
+
 class EdgePatternDetector:
     """LA / FS / SL leg patterns from vertical edges (seed 002)."""
 
@@ -129,114 +177,112 @@ class EdgePatternDetector:
 
     def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
         s = self.settings
-        n = scan.ranges.shape[0]
-        if n < 3:
+        if scan.ranges.shape[0] < 3:
             return candidates_message(scan, self.name, [])
         raw, valid, pre, inc = self.preprocess(scan)
         edges = self.edges(pre)
         if len(edges) < 2:
             return candidates_message(scan, self.name, [])
-        angles = scan.angles_rad()
         lost = (max(_window(s.max_window_beams, inc), 1) - _window(s.min_window_beams, inc)) // 2
-
-        def span_of(first: int, last: int) -> tuple[int, int] | None:
-            if not 0 <= first <= last < n or not valid[first : last + 1].all():
-                return None
-            return first, last
-
-        def leg(span: tuple[int, int]) -> tuple[float, float, float]:
-            """(x, y, width) of the raw points of ``span``."""
-            a, b = span
-            rr, aa = raw[a : b + 1], angles[a : b + 1]
-            x = float(np.mean(rr * np.cos(aa)))
-            y = float(np.mean(rr * np.sin(aa)))
-            xa, ya = raw[a] * math.cos(angles[a]), raw[a] * math.sin(angles[a])
-            xb, yb = raw[b] * math.cos(angles[b]), raw[b] * math.sin(angles[b])
-            r_mid = 0.5 * (raw[a] + raw[b])
-            width = math.hypot(xb - xa, yb - ya) + (1 + 2 * lost) * r_mid * inc
-            return x, y, float(width)
-
-        # an object between an L edge and the next R edge: beams (L.last + 1) .. R.first
-        def obj(e1, e2):
-            return span_of(e1[2] + 1, e2[1])
-
+        spans = _Spans(raw, valid, scan.angles_rad(), inc, lost)
+        # Table I's order: each edge goes to the first pattern that takes it
         used = [False] * len(edges)
-        found: list[tuple[str, list[tuple[tuple[int, int], tuple[float, float, float]]]]] = []
+        found = self._legs_apart(spans, edges, used)
+        found += self._forward_straddles(spans, edges, used, pre)
+        found += self._single_legs(spans, edges, used)
+        out = [self._candidate(spans, pattern, parts) for pattern, parts in found]
+        if prediction is not None:
+            out = [c for c in out if _near(c, prediction, s.gate_m)]
+        out.sort(key=lambda c: c.legs[0].first_beam)
+        return candidates_message(scan, self.name, out)
+
+    def _legs_apart(self, spans: _Spans, edges: list[_Edge], used: list[bool]) -> list[_Pattern]:
+        """LA: {L, R, L, R}, both legs of width a, centres closer than b; marks their edges."""
+        s = self.settings
         kinds = [e[0] for e in edges]
         m = len(edges)
-
-        def is_leg(span) -> tuple[float, float, float] | None:
-            if span is None:
-                return None
-            g = leg(span)
-            return g if s.leg_min_m < g[2] < s.leg_max_m else None
-
-        # LA: {L, R, L, R}, both legs of width a, centres closer than b
+        found: list[_Pattern] = []
         for i in range(m - 3):
             if used[i] or kinds[i] != "L" or used[i + 1] or kinds[i + 1] != "R":
                 continue
-            sp1 = obj(edges[i], edges[i + 1])
-            g1 = is_leg(sp1)
+            sp1 = spans.between(edges[i], edges[i + 1])
+            g1 = self._leg_sized(spans, sp1)
             if g1 is None:
                 continue
             for j in range(i + 2, m - 1):
                 if used[j] or kinds[j] != "L" or used[j + 1] or kinds[j + 1] != "R":
                     continue
-                sp2 = obj(edges[j], edges[j + 1])
-                g2 = is_leg(sp2)
+                sp2 = spans.between(edges[j], edges[j + 1])
+                g2 = self._leg_sized(spans, sp2)
                 if g2 is not None and math.hypot(g2[0] - g1[0], g2[1] - g1[1]) < s.step_max_m:
                     found.append(("LA", [(sp1, g1), (sp2, g2)]))
                     used[i] = used[i + 1] = used[j] = used[j + 1] = True
                     break
-        # FS: {L, L, R} or {L, R, R}: one object in two parts, depth step below b
-        free = [k for k in range(m) if not used[k]]
+        return found
+
+    def _forward_straddles(
+        self, spans: _Spans, edges: list[_Edge], used: list[bool], pre: np.ndarray
+    ) -> list[_Pattern]:
+        """FS: {L, L, R} or {L, R, R} among the edges still free: one object of width
+        a_min..c_max in two parts whose depth step (on the preprocessed ranges) is below b."""
+        s = self.settings
+        kinds = [e[0] for e in edges]
+        free = [k for k in range(len(edges)) if not used[k]]
+        found: list[_Pattern] = []
         for a_, b_, c_ in zip(free, free[1:], free[2:], strict=False):
             if used[a_] or used[b_] or used[c_] or kinds[a_] != "L":
                 continue
-            pat = kinds[a_] + kinds[b_] + kinds[c_]
-            if pat == "LLR":
-                p1 = span_of(edges[a_][2] + 1, edges[b_][1])  # the farther leg's visible part
-                p2 = span_of(edges[b_][2] + 1, edges[c_][1])  # the nearer leg
-            elif pat == "LRR":
-                p1 = span_of(edges[a_][2] + 1, edges[b_][1])  # the nearer leg
-                p2 = span_of(edges[b_][2] + 1, edges[c_][1])  # the farther leg's visible part
-            else:
+            if kinds[b_] + kinds[c_] not in ("LR", "RR"):
                 continue
-            whole = span_of(edges[a_][2] + 1, edges[c_][1])
+            # LLR: the farther leg's visible part, then the nearer leg; LRR: the other way round
+            p1 = spans.span(edges[a_][2] + 1, edges[b_][1])
+            p2 = spans.span(edges[b_][2] + 1, edges[c_][1])
+            whole = spans.span(edges[a_][2] + 1, edges[c_][1])
             if p1 is None or p2 is None or whole is None:
                 continue
             step = abs(pre[edges[b_][2] + 1] - pre[edges[b_][1]])
-            gw = leg(whole)
+            gw = spans.leg(whole)
             if step < s.step_max_m and s.leg_min_m < gw[2] < s.together_max_m:
-                found.append(("FS", [(p1, leg(p1)), (p2, leg(p2))]))
+                found.append(("FS", [(p1, spans.leg(p1)), (p2, spans.leg(p2))]))
                 used[a_] = used[b_] = used[c_] = True
-        # SL: {L, R} of a single leg or two legs together
-        for i in range(m - 1):
+        return found
+
+    def _single_legs(self, spans: _Spans, edges: list[_Edge], used: list[bool]) -> list[_Pattern]:
+        """SL: {L, R} among the edges still free, a single leg or two legs together."""
+        s = self.settings
+        kinds = [e[0] for e in edges]
+        found: list[_Pattern] = []
+        for i in range(len(edges) - 1):
             if used[i] or used[i + 1] or kinds[i] != "L" or kinds[i + 1] != "R":
                 continue
-            sp = obj(edges[i], edges[i + 1])
+            sp = spans.between(edges[i], edges[i + 1])
             if sp is None:
                 continue
-            g = leg(sp)
+            g = spans.leg(sp)
             if min(s.leg_min_m, s.together_min_m) < g[2] < s.together_max_m:
                 found.append(("SL", [(sp, g)]))
                 used[i] = used[i + 1] = True
+        return found
 
+    def _leg_sized(self, spans: _Spans, span: _Span | None) -> _LegFit | None:
+        """The leg of ``span`` when its width is a single leg's (leg_min_m..leg_max_m)."""
+        if span is None:
+            return None
+        g = spans.leg(span)
+        return g if self.settings.leg_min_m < g[2] < self.settings.leg_max_m else None
+
+    def _candidate(self, spans: _Spans, pattern: str, parts: list[_Part]) -> Candidate:
+        """The person of one pattern, at the mean of its legs, with the pattern's confidence."""
+        s = self.settings
         conf = {"LA": s.la_confidence, "FS": s.fs_confidence, "SL": s.sl_confidence}
-        out: list[Candidate] = []
-        for pattern, parts in found:
-            legs = [
-                Leg(x_m=g[0], y_m=g[1], first_beam=sp[0], last_beam=sp[1], width_m=g[2])
-                for sp, g in parts
-            ]
-            c = person(legs, pattern, conf[pattern])
-            if pattern == "FS":  # one object: its width is the whole pattern's
-                c.width_m = leg((parts[0][0][0], parts[1][0][1]))[2]
-            if prediction is not None and not _near(c, prediction, s.gate_m):
-                continue
-            out.append(c)
-        out.sort(key=lambda c: c.legs[0].first_beam)
-        return candidates_message(scan, self.name, out)
+        legs = [
+            Leg(x_m=g[0], y_m=g[1], first_beam=sp[0], last_beam=sp[1], width_m=g[2])
+            for sp, g in parts
+        ]
+        c = person(legs, pattern, conf[pattern])
+        if pattern == "FS":  # one object: its width is the whole pattern's
+            c.width_m = spans.leg((parts[0][0][0], parts[1][0][1]))[2]
+        return c
 
 
 def _near(c: Candidate, prediction: Prediction, radius_m: float) -> bool:

@@ -60,6 +60,7 @@ import functools
 import math
 from importlib import resources
 from pathlib import Path
+from typing import NamedTuple
 
 import msgspec
 import numpy as np
@@ -251,32 +252,102 @@ def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
         z = np.zeros(0)
         return np.zeros((0, len(FEATURES)), dtype=np.float32), z, z
     inc = _increment(x, y, r, valid) if increment_rad is None else abs(increment_rad)
+    p = _gather(starts, ends, x, y)
+    m = _moments(p)
+    line_res, axis_ratio = _line_fit(m)
+    radius, circ_res = _circle_fit(p, m, line_res)
+    blen, breg = _boundary(x, y, starts, ends, p.fc)
+    width, ia_mean, ia_std = _chord_and_angles(p, x, y, starts, ends)
+    depth, depth_max = _chord_depth(p, x, y, starts, ends, width)
+    rng = np.hypot(m.cx, m.cy)
+    obliq = np.minimum(width / np.maximum((p.fc - 1.0) * inc * rng, 1e-6), OBLIQUENESS_CAP)
+    step_min, step_max = _background_steps(r, valid, starts, ends)
+    cols = [p.fc, width, rng, np.sqrt(m.tr), m.mean_spread, line_res, axis_ratio, radius, circ_res]
+    cols += [blen, breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
+    partner_shape = np.array([circ_res, line_res, radius, depth, step_max, rng])
+    cols += _context(m.cx, m.cy, width, p.fc, partner_shape)
+    return _rows(cols, k), m.cx, m.cy
+
+
+class _Points(NamedTuple):
+    """Every point of every segment, gathered in one array (segments are disjoint, ordered)."""
+
+    k: int
+    fc: np.ndarray
+    """(k,) points per segment, as floats."""
+    cid: np.ndarray
+    """Segment index of each point."""
+    first: np.ndarray
+    """(k,) offset of each segment's first point in the gathered arrays."""
+    idx: np.ndarray
+    """Beam index of each point."""
+    px: np.ndarray
+    py: np.ndarray
+
+
+def _gather(starts, ends, x, y) -> _Points:
+    k = int(starts.shape[0])
     cnt = ends - starts + 1
-    fc = cnt.astype(np.float64)
-    # every beam of every segment, with its segment index (segments are disjoint, ordered)
     cid = np.repeat(np.arange(k), cnt)
-    first = np.cumsum(cnt) - cnt  # offset of each segment's first point in the gathered arrays
+    first = np.cumsum(cnt) - cnt
     idx = np.arange(cid.shape[0]) - first[cid] + starts[cid]
-    px, py = x[idx], y[idx]
-    cx = np.bincount(cid, px, k) / fc
-    cy = np.bincount(cid, py, k) / fc
-    u = px - cx[cid]
-    v = py - cy[cid]
+    return _Points(k, cnt.astype(np.float64), cid, first, idx, x[idx], y[idx])
+
+
+class _Moments(NamedTuple):
+    """Centroids, the points about them, and the segments' second moments."""
+
+    cx: np.ndarray
+    cy: np.ndarray
+    u: np.ndarray
+    """Per point: x about its segment's centroid."""
+    v: np.ndarray
+    zz: np.ndarray
+    """Per point: u^2 + v^2."""
+    suu: np.ndarray
+    svv: np.ndarray
+    suv: np.ndarray
+    mean_spread: np.ndarray
+    """Mean distance of the points to the centroid."""
+    tr: np.ndarray
+    """Trace of the scatter matrix [suu suv; suv svv] (the mean squared spread)."""
+    det: np.ndarray
+    """Its determinant."""
+
+
+def _moments(p: _Points) -> _Moments:
+    k, cid, fc = p.k, p.cid, p.fc
+    cx = np.bincount(cid, p.px, k) / fc
+    cy = np.bincount(cid, p.py, k) / fc
+    u = p.px - cx[cid]
+    v = p.py - cy[cid]
     uu, vv = u * u, v * v
     suu = np.bincount(cid, uu, k) / fc
     svv = np.bincount(cid, vv, k) / fc
     suv = np.bincount(cid, u * v, k) / fc
     zz = uu + vv
     mean_spread = np.bincount(cid, np.sqrt(zz), k) / fc
-    # scatter matrix eigenvalues: lam2 is the line fit's mean squared residual
     tr = suu + svv
     det = suu * svv - suv * suv
+    return _Moments(cx, cy, u, v, zz, suu, svv, suv, mean_spread, tr, det)
+
+
+def _line_fit(m: _Moments) -> tuple[np.ndarray, np.ndarray]:
+    """(line-fit residual, axis ratio) of each segment."""
+    # scatter matrix eigenvalues: lam2 is the line fit's mean squared residual
+    tr, det = m.tr, m.det
     disc = np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
     lam1 = 0.5 * tr + disc
     lam2 = np.maximum(0.5 * tr - disc, 0.0)
-    line_res = np.sqrt(lam2)
-    axis_ratio = np.sqrt(lam2 / np.maximum(lam1, 1e-12))
-    # Kasa circle fit on centred points: [suu suv; suv svv] (uc, vc) = 0.5 (m(u zz), m(v zz)),
+    return np.sqrt(lam2), np.sqrt(lam2 / np.maximum(lam1, 1e-12))
+
+
+def _circle_fit(p: _Points, m: _Moments, line_res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(radius, RMS residual) of each segment's Kasa circle fit; a straight segment (singular
+    system or radius over RADIUS_CAP_M) gets the cap and its line-fit residual."""
+    k, cid, fc = p.k, p.cid, p.fc
+    suu, svv, suv, u, v, zz, det = m.suu, m.svv, m.suv, m.u, m.v, m.zz, m.det
+    # on centred points: [suu suv; suv svv] (uc, vc) = 0.5 (m(u zz), m(v zz)),
     # r^2 = uc^2 + vc^2 + suu + svv
     bu = 0.5 * np.bincount(cid, u * zz, k) / fc
     bv = 0.5 * np.bincount(cid, v * zz, k) / fc
@@ -284,13 +355,17 @@ def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
     sdet = np.where(ok, det, 1.0)
     uc = np.where(ok, (bu * svv - bv * suv) / sdet, 0.0)
     vc = np.where(ok, (bv * suu - bu * suv) / sdet, 0.0)
-    radius = np.sqrt(uc * uc + vc * vc + tr)
+    radius = np.sqrt(uc * uc + vc * vc + m.tr)
     straight = ~ok | (radius > RADIUS_CAP_M)
     radius[straight] = RADIUS_CAP_M
     e = np.sqrt((u - uc[cid]) ** 2 + (v - vc[cid]) ** 2) - radius[cid]
     circ_res = np.sqrt(np.bincount(cid, e * e, k) / fc)
-    circ_res = np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
-    # boundary: steps between consecutive points (one cumulative sum over the scan)
+    return radius, np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
+
+
+def _boundary(x, y, starts, ends, fc) -> tuple[np.ndarray, np.ndarray]:
+    """(length, regularity: std of the steps) of each segment's chain of points, from one
+    cumulative sum of the point-to-point steps over the scan."""
     sx = x[1:] - x[:-1]
     sy = y[1:] - y[:-1]
     s2 = sx * sx + sy * sy
@@ -301,29 +376,44 @@ def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
     blen = cs[0, ends] - cs[0, starts]
     bmean = blen / nstep
     breg = np.sqrt(np.maximum((cs[1, ends] - cs[1, starts]) / nstep - bmean * bmean, 0.0))
-    # end points A, B; inscribed angles at the interior points P: angle APB
+    return blen, breg
+
+
+def _chord_and_angles(p: _Points, x, y, starts, ends) -> tuple[np.ndarray, ...]:
+    """(width A-B, mean and std of the inscribed angles APB) of each segment, with A and B its
+    end points and P its interior points."""
+    k, cid = p.k, p.cid
     ax, ay = x[starts], y[starts]
     wx, wy = x[ends] - ax, y[ends] - ay
     width = np.hypot(wx, wy)
-    inner = (idx != starts[cid]) & (idx != ends[cid])
+    inner = (p.idx != starts[cid]) & (p.idx != ends[cid])
     icid = cid[inner]
-    qx, qy = px[inner], py[inner]
+    qx, qy = p.px[inner], p.py[inner]
     pax, pay = ax[icid] - qx, ay[icid] - qy
     pbx, pby = pax + wx[icid], pay + wy[icid]
     ang = np.abs(np.arctan2(pax * pby - pay * pbx, pax * pbx + pay * pby))
-    n_inner = np.maximum(fc - 2.0, 1.0)
+    n_inner = np.maximum(p.fc - 2.0, 1.0)
     ia_mean = np.bincount(icid, ang, k) / n_inner
     ia_std = np.sqrt(np.maximum(np.bincount(icid, ang * ang, k) / n_inner - ia_mean**2, 0.0))
-    # chord depth: distance of each point from the line AB, positive on the laser's side
+    return width, ia_mean, ia_std
+
+
+def _chord_depth(p: _Points, x, y, starts, ends, width) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, largest) distance of each segment's points from its chord, positive on the
+    laser's side."""
+    ax, ay = x[starts], y[starts]
+    wx, wy = x[ends] - ax, y[ends] - ay
+    cid = p.cid
     wn = np.maximum(width, 1e-9)
     nx, ny = -wy / wn, wx / wn
     nx, ny = np.where(nx * ax + ny * ay > 0, (-nx, -ny), (nx, ny))  # normal towards the laser
-    dep = nx[cid] * (px - ax[cid]) + ny[cid] * (py - ay[cid])
-    depth = np.bincount(cid, dep, k) / fc
-    depth_max = np.maximum.reduceat(dep, first)
-    rng = np.hypot(cx, cy)
-    obliq = np.minimum(width / np.maximum(nstep * inc * rng, 1e-6), OBLIQUENESS_CAP)
-    # range steps to the beams just outside the segment (no return or outside the scan: far)
+    dep = nx[cid] * (p.px - ax[cid]) + ny[cid] * (p.py - ay[cid])
+    return np.bincount(cid, dep, p.k) / p.fc, np.maximum.reduceat(dep, p.first)
+
+
+def _background_steps(r, valid, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    """(smaller, larger) range step from each segment's end beams to the beams just outside
+    it, capped at STEP_CAP_M (no return or outside the scan: far)."""
     n = r.shape[0]
     rp = np.full(n + 2, np.inf)
     np.copyto(rp[1:-1], r, where=valid)
@@ -331,40 +421,45 @@ def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
     steps = rp[np.array([starts, ends + 2])] - r[np.array([starts, ends])]
     np.maximum(steps, -STEP_CAP_M, out=steps)
     np.minimum(steps, STEP_CAP_M, out=steps)
-    step_min = steps.min(axis=0)
-    step_max = steps.max(axis=0)
-    cols = [fc, width, rng, np.sqrt(tr), mean_spread, line_res, axis_ratio, radius, circ_res]
-    cols += [blen, breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
-    # context: the nearest other segment (complex points: one subtraction, one hypot)
-    cz = cx + 1j * cy
-    if k > 1:
-        dd = np.abs(cz[:, None] - cz)
-        dd.flat[:: k + 1] = np.inf  # not itself
-        j = dd.argmin(axis=1)
-        nd = dd[np.arange(k), j]
-        near = nd < CONTEXT_CAP_M
-        partner = nd < PARTNER_M
-        cols += [
-            np.minimum(nd, CONTEXT_CAP_M),
-            np.where(near, width[j], 0.0),
-            np.where(near, fc[j], 0.0),
-            np.count_nonzero(dd < 1.0, axis=1),
-            np.count_nonzero(dd < PARTNER_M, axis=1),
-        ]
-        # the partner's shape, or sentinels when there is none within PARTNER_M
-        shape = np.array([circ_res, line_res, radius, depth, step_max, rng])[:, j]
-        shape[5] -= rng
-        cols += list(np.where(partner, shape, _NO_PARTNER))
-    else:
-        cols += [CONTEXT_CAP_M, 0.0, 0.0, 0.0, 0.0, *_NO_PARTNER[:, 0].tolist()]
+    return steps.min(axis=0), steps.max(axis=0)
+
+
+def _context(cx, cy, width, fc, partner_shape: np.ndarray) -> list:
+    """The context columns: the nearest other segment's distance, width and point count, the
+    segments within 1 m and PARTNER_M, and ``partner_shape`` (rows: circle residual, line
+    residual, radius, chord depth, larger step, range) of the nearest segment when it lies
+    within PARTNER_M, its range as the difference to this segment's."""
+    k = cx.shape[0]
+    if k == 1:
+        return [CONTEXT_CAP_M, 0.0, 0.0, 0.0, 0.0, *_NO_PARTNER[:, 0].tolist()]
+    cz = cx + 1j * cy  # complex points: one subtraction, one hypot
+    dd = np.abs(cz[:, None] - cz)
+    dd.flat[:: k + 1] = np.inf  # not itself
+    j = dd.argmin(axis=1)
+    nd = dd[np.arange(k), j]
+    near = nd < CONTEXT_CAP_M
+    partner = nd < PARTNER_M
+    cols = [
+        np.minimum(nd, CONTEXT_CAP_M),
+        np.where(near, width[j], 0.0),
+        np.where(near, fc[j], 0.0),
+        np.count_nonzero(dd < 1.0, axis=1),
+        np.count_nonzero(dd < PARTNER_M, axis=1),
+    ]
+    shape = partner_shape[:, j]
+    shape[5] -= partner_shape[5]
+    return cols + list(np.where(partner, shape, _NO_PARTNER))
+
+
+def _rows(cols: list, k: int) -> np.ndarray:
+    """(k, len(cols)) float32, C-contiguous: one row per segment."""
     if k > 1:  # every column an array of k values: one conversion
         out = np.array(cols, dtype=np.float32)
     else:
         out = np.empty((len(cols), k), dtype=np.float32)
         for i, c in enumerate(cols):
             out[i] = c
-    out = np.ascontiguousarray(out.T)
-    return out, cx, cy
+    return np.ascontiguousarray(out.T)
 
 
 def select_legs(
