@@ -115,8 +115,8 @@ def start_pipeline(spawn, endpoint, robot):
     common = ["--robot", robot, "--connect", endpoint, "--set", "health_period_s=0.25"]
     tracker = spawn("run", "tracker", *common, "--set", "acquire=nearest")
     controller = spawn("run", "controller", *common)
-    tracker.wait_for_output("tracker up")
-    controller.wait_for_output("controller up")
+    tracker.wait_for_output("tracker up", timeout=30)
+    controller.wait_for_output("controller up", timeout=30)
     return tracker, controller
 
 
