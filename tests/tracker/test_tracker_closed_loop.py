@@ -77,3 +77,25 @@ def test_two_people_cross_and_the_follower_stays_on_the_target():
     assert m["tracked_visible_share"] > 0.95, m
     assert m["follow_distance_share"] > 0.8, m
     assert max(len(r.people.tracks) for r in records) >= 2  # both people were tracked
+
+
+@pytest.mark.parametrize("gate", [True, False], ids=["criterion_3", "no_criterion_3"])
+def test_the_loop_runs_laser_legs_as_the_pipeline_does(gate):
+    """laser_legs is the service's own node: once the target is tracked, criterion 3 gates the
+    bystander's candidates away on the tracker's previous answer (the thesis's tracking stage),
+    and every candidates message carries its horizon; switched off, both people stay."""
+    records = run(
+        "thesis_5_2_4_two_people", duration_s=12.0, laser_legs={"use_target_prediction": gate}
+    )
+    both_seen = [
+        r
+        for r in records
+        if r.target.status == "tracking" and sum(p.visible_laser for p in r.truth.people) == 2
+    ]
+    assert len(both_seen) > 30
+    alone = sum(len(r.candidates.candidates) == 1 for r in both_seen) / len(both_seen)
+    if gate:
+        assert alone > 0.8, alone
+    else:
+        assert alone < 0.2, alone
+    assert all(r.candidates.horizon is not None for r in records)
