@@ -3,7 +3,9 @@
 Pure functions on recorded messages: no Zenoh, no processes. The orchestrator runs a scenario
 in lock-step, fills one :class:`ScanRecord` per scan and hands a :class:`ScenarioRun` to
 :func:`compute_metrics`; :func:`plot_run` draws it and :func:`write_report` writes
-``report.md`` and ``summary.json`` for any number of runs (scenarios x presets).
+``report.md`` and ``summary.json`` for any number of runs (scenarios x presets). These are
+the only definitions of the metrics below: ``followbot eval``, ``followbot sweep`` and the
+in-process loop of ``followbot.research.closedloop`` all compute them here.
 
 Frames and time
 ===============

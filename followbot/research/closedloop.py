@@ -1,15 +1,28 @@
-"""In-process closed loop: simulator -> leg detector -> tracker -> controller -> simulator.
+"""In-process closed loop: the simulator and the real stages, one scan at a time.
 
-The same sequence of messages a lock-step run over Zenoh would see, in one process and one
-thread, for tests and figures. Vision is a stand-in: ``vision="oracle"``
-publishes, for every scan, a Verification choosing the candidate nearest the true target when
-the camera sees it (the tracker is measured, not a verifier); ``vision_lag_scans`` delays it.
-The target model is given at the first scan from the truth (thesis 4.2: model construction
-finds the target's laser position).
+laser_legs, the tracker and the controller are the services' own nodes (each service's
+``setup``, with a preset's settings made for lock-step as ``followbot eval`` makes them) on an
+in-memory bus whose delivery is synchronous: every stage answers a scan before the simulator
+moves on, in one process and one thread, so a run is deterministic and takes no Zenoh. What
+each stage does to a scan is what it does in ``followbot eval``: criterion 3 on the tracker's
+answer to the previous scan, the horizon, the robot-body filter, the obstacle guard.
+
+What differs from ``followbot eval``:
+
+- vision is an oracle stand-in, not vision_verify: for every scan it publishes a Verification
+  choosing the candidate nearest the true target (within 0.3 m) when the camera sees it
+  (``vision="none"``: no verifications, and the tracker sees no vision service alive);
+- the target model comes from the truth at the first scan with a target, also without vision
+  (thesis 4.2: model construction finds the target's laser position), so the tracker is
+  measured, not the acquisition;
+- research options the eval has not: ``drive`` (a constant base command instead of the
+  controller's), ``candidates="truth"`` (the true target position instead of laser_legs, to
+  isolate the tracker from the detector), ``odometry=False`` (no ego-motion compensation).
+
+Each scan becomes a :class:`followbot.evaluation.ScanRecord`, so the metrics are the eval's
+own (:func:`metrics` is :func:`followbot.evaluation.compute_metrics`).
 
     python -m followbot.research.closedloop thesis_5_2_4_two_people --estimator ukf
-
-Metrics follow DESIGN.md "Metric definitions".
 """
 
 from __future__ import annotations
@@ -19,51 +32,66 @@ import json
 import math
 from typing import Any, Literal
 
-import msgspec
 import numpy as np
 
+from followbot.evaluation import ScanRecord, ScenarioRun, compute_metrics
+from followbot.runner import sensor_mounts, stage_settings
 from followbot.schemas import (
+    Candidate,
     GroundTruth,
+    Keys,
     LaserScan,
     Odometry,
+    PanCommand,
     PersonCandidates,
     TargetModel,
-    TrackState,
+    VelocityCommand,
     Verification,
     VerifiedCandidate,
+    decode,
+    encode,
+    topic_type,
 )
-from followbot.services.controller.avoid import scan_points, scan_view
-from followbot.services.controller.core import ControllerSettings, FollowController
-from followbot.services.laser_legs.detectors import make_detector
-from followbot.services.runtime.mount import LaserMount
+from followbot.services.controller.node import ControllerNodeSettings
+from followbot.services.controller.node import setup as controller_setup
+from followbot.services.laser_legs.node import LaserLegsSettings
+from followbot.services.laser_legs.node import setup as laser_legs_setup
+from followbot.services.runtime.bus import FakeNetwork
+from followbot.services.runtime.node import Node
+from followbot.services.runtime.settings import load_settings
 from followbot.services.sim.scenario import Scenario, load_builtin
 from followbot.services.sim.simulation import Simulation
-from followbot.services.tracker.core import Tracker, TrackerSettings
+from followbot.services.tracker.node import TrackerNodeSettings
+from followbot.services.tracker.node import setup as tracker_setup
 
-__all__ = ["Record", "metrics", "run"]
+__all__ = ["mean_speeds", "metrics", "run", "world_error_m", "world_estimate"]
 
 _NS = 1_000_000_000
+#: what the in-process evaluator keeps of each scan: topic -> ScanRecord field
+_ANSWERS = {
+    "perception/candidates": "candidates",
+    "tracking/target": "target",
+    "tracking/people": "people",
+    "control/cmd_vel": "cmd",
+}
+_MATCH_M = 0.3  # the oracle's choice: the candidate within this of the true target
 
 
-class Record(msgspec.Struct):
-    """One scan of a run: the estimate and the truth, both in the base frame of the scan."""
-
-    t_s: float
-    status: str
-    est: tuple[float, float, float, float]
-    true: tuple[float, float, float, float] | None
-    visible: bool
-    others: list[tuple[float, float]]
-    robot: tuple[float, float, float]
-    """True robot pose (world)."""
-    true_world: tuple[float, float] | None
-    flags: list[str]
-    n_people: int
+class StageDidNotAnswer(RuntimeError):
+    """A stage gave no answer to a scan although every input it waits for was delivered."""
 
 
-def _oracle(cands: PersonCandidates, truth: GroundTruth, camera_fov_rad: float) -> Verification:
-    tgt = next((p for p in truth.people if p.is_target), None)
-    vcs, best, best_d = [], -1, 0.3
+def _target(truth: GroundTruth):
+    return next((p for p in truth.people if p.is_target), None)
+
+
+def _oracle(
+    cands: PersonCandidates, truth: GroundTruth, camera_fov_rad: float, model_id: int
+) -> Verification:
+    """The verification of a camera that knows the truth: every candidate in view is judged,
+    the one nearest the true target is chosen when the target is in view."""
+    tgt = _target(truth)
+    vcs, best, best_d = [], -1, _MATCH_M
     for i, c in enumerate(cands.candidates):
         rel = math.atan2(c.y_m, c.x_m) - truth.camera_pan_rad
         in_view = abs(math.atan2(math.sin(rel), math.cos(rel))) < camera_fov_rad / 2
@@ -82,81 +110,11 @@ def _oracle(cands: PersonCandidates, truth: GroundTruth, camera_fov_rad: float) 
     return Verification(
         stamp_ns=cands.stamp_ns,
         image_stamp_ns=cands.stamp_ns,
-        model_id=1,
+        model_id=model_id,
         verifier="oracle",
         candidates=vcs,
         chosen=best,
     )
-
-
-def run(
-    scenario: Scenario | str,
-    *,
-    estimator: str = "particle",
-    tracker: dict[str, Any] | None = None,
-    controller: bool | ControllerSettings = True,
-    vision: Literal["oracle", "none"] = "oracle",
-    seed: int | None = None,
-    duration_s: float | None = None,
-    drive: tuple[float, float] | None = None,
-    candidates: Literal["detector", "truth"] = "detector",
-    truth_noise_m: float = 0.0,
-    odometry: bool = True,
-) -> list[Record]:
-    """Run ``scenario`` closed loop; one :class:`Record` per scan.
-
-    ``drive=(v, w)`` replaces the controller's base command by a constant one (the camera still
-    follows the controller's pan);
-    ``candidates="truth"`` replaces the detector by the true target position (plus
-    ``truth_noise_m`` of Gaussian noise) to isolate the tracker from the detector;
-    ``odometry=False`` withholds odometry from the tracker (no ego-motion compensation).
-    """
-    sc = load_builtin(scenario) if isinstance(scenario, str) else scenario
-    sim = Simulation(sc, seed=seed)
-    detector = make_detector("thesis")
-    settings = msgspec.convert({"estimator": estimator, **(tracker or {})}, TrackerSettings)
-    trk = Tracker(settings, sc.laser.mount())
-    trk.set_vision_alive(vision != "none")
-    ctl = None
-    if controller:
-        ctl = FollowController(controller if isinstance(controller, ControllerSettings) else None)
-    noise_rng = np.random.default_rng(12345)
-    fov = math.radians(sc.camera.hfov_deg)
-    end_ns = sim.duration_ns if duration_s is None else int(duration_s * _NS)
-    records: list[Record] = []
-    last_stamp: int | None = None
-    scan: LaserScan | None = None
-    if drive is not None:
-        sim.command_velocity(*drive)
-    while sim.t_ns < end_ns:
-        msgs = sim.tick()
-        for m in msgs:
-            if isinstance(m, Odometry) and odometry:
-                trk.add_odometry(m)
-        for m in msgs:
-            if isinstance(m, LaserScan):
-                scan = m
-            elif isinstance(m, GroundTruth) and scan is not None:
-                truth = m
-                tgt = next((p for p in truth.people if p.is_target), None)
-                if candidates == "truth":
-                    cands = _truth_candidates(scan, tgt, truth_noise_m, noise_rng)
-                else:
-                    cands = detector.detect(scan)
-                if not records and tgt is not None:
-                    trk.set_target_model(_oracle_model(scan.stamp_ns, tgt))
-                state, people = trk.step(cands)
-                if vision == "oracle":
-                    trk.add_verification(_oracle(cands, truth, fov))
-                if ctl is not None:
-                    dt = 0.12 if last_stamp is None else (scan.stamp_ns - last_stamp) / _NS
-                    _command(sim, ctl, state, dt, scan, sc.laser.mount())
-                if drive is not None:
-                    sim.command_velocity(*drive)  # the base is driven; the camera still pans
-                last_stamp = scan.stamp_ns
-                records.append(_record(truth, state, len(people.tracks)))
-                scan = None
-    return records
 
 
 def _oracle_model(stamp_ns: int, tgt) -> TargetModel:
@@ -174,20 +132,8 @@ def _oracle_model(stamp_ns: int, tgt) -> TargetModel:
     )
 
 
-def _command(sim, ctl, state: TrackState, dt: float, scan: LaserScan, mount: LaserMount) -> None:
-    """The controller's command for ``state``, sent to the simulated base and camera."""
-    pts = view = None
-    if ctl.guard is not None:  # the controller's obstacle guard sees the scan
-        pts = scan_points(scan, mount)
-        view = scan_view(scan, mount)
-    cmd = ctl.on_target(state, dt, pts, view)
-    sim.command_velocity(cmd.linear_mps, cmd.angular_radps)
-    sim.command_pan(cmd.pan_rad)
-
-
 def _truth_candidates(scan: LaserScan, tgt, noise_m: float, rng) -> PersonCandidates:
-    from followbot.schemas import Candidate
-
+    """The true target (when the laser sees it), with ``noise_m`` of Gaussian noise."""
     cands = []
     if tgt is not None and tgt.visible_laser:
         x = tgt.robot_x_m + (rng.normal(0, noise_m) if noise_m else 0.0)
@@ -198,125 +144,245 @@ def _truth_candidates(scan: LaserScan, tgt, noise_m: float, rng) -> PersonCandid
     return PersonCandidates(stamp_ns=scan.stamp_ns, frame_id=scan.frame_id, candidates=cands)
 
 
-def _record(truth: GroundTruth, st: TrackState, n_people: int) -> Record:
-    tgt = next((p for p in truth.people if p.is_target), None)
-    others = [(p.robot_x_m, p.robot_y_m) for p in truth.people if not p.is_target]
-    return Record(
-        t_s=truth.stamp_ns / _NS,
-        status=st.status,
-        est=(st.x_m, st.y_m, st.vx_mps, st.vy_mps),
-        true=None
-        if tgt is None
-        else (tgt.robot_x_m, tgt.robot_y_m, tgt.robot_vx_mps, tgt.robot_vy_mps),
-        visible=bool(tgt is not None and tgt.visible_laser),
-        others=others,
-        robot=(truth.robot_x_m, truth.robot_y_m, truth.robot_yaw_rad),
-        true_world=None if tgt is None else (tgt.x_m, tgt.y_m),
-        flags=list(st.flags),
-        n_people=n_people,
-    )
+class _Pipeline:
+    """The stages' nodes on one in-memory network, and the ears of the evaluator on it."""
+
+    def __init__(self, settings: dict[str, dict[str, Any]], vision: bool) -> None:
+        self.vision = vision
+        self.net = FakeNetwork()
+        self.nodes: list[Node] = []
+        stages = {
+            "laser_legs": (LaserLegsSettings, laser_legs_setup),
+            "tracker": (TrackerNodeSettings, tracker_setup),
+            "controller": (ControllerNodeSettings, controller_setup),
+        }
+        for name, values in settings.items():
+            cls, setup = stages[name]
+            node = Node(name, load_settings(cls, base=values), self.net.bus(name))
+            setup(node, node.settings)
+            self.nodes.append(node)
+        self.keys: Keys = self.nodes[0].keys
+        for node in self.nodes:
+            node.announce()
+        if vision:  # the oracle stands in for vision_verify: the tracker sees it alive
+            self.net.bus("vision_verify").liveliness_token(self.keys.alive("vision_verify"))
+        self.heard: dict[str, Any] = {}
+        ears = self.net.bus("closedloop")
+        for topic in (*_ANSWERS, "control/pan"):
+            ears.subscribe(self.keys.topic(topic), lambda p, t=topic: self._hear(t, p))
+        self.spin()
+
+    def _hear(self, topic: str, payload: bytes) -> None:
+        msg = decode(topic_type(topic), payload)
+        self.heard.setdefault(topic, []).append(msg)
+
+    def spin(self) -> None:
+        """Let every node handle what it was sent, until none has anything left."""
+        while sum(node.spin_once() for node in self.nodes):
+            pass
+
+    def put(self, topic: str, message) -> None:
+        self.net.put(self.keys.topic(topic), encode(message))
+        self.spin()
+
+    def answers(self, stamp_ns: int) -> dict[str, Any]:
+        """The messages heard since the last call that name ``stamp_ns`` (one per topic)."""
+        out: dict[str, Any] = {}
+        for topic, msgs in self.heard.items():
+            mine = [m for m in msgs if m.stamp_ns == stamp_ns]
+            if mine:
+                out[topic] = mine[-1]
+        self.heard.clear()
+        return out
 
 
-def world_estimate(r: Record) -> tuple[float, float]:
-    """The estimate carried to world coordinates with the true robot pose."""
-    x, y, yaw = r.robot
+def run(
+    scenario: Scenario | str,
+    *,
+    preset: str = "thesis",
+    estimator: str | None = None,
+    tracker: dict[str, Any] | None = None,
+    laser_legs: dict[str, Any] | None = None,
+    vision: Literal["oracle", "none"] = "oracle",
+    seed: int | None = None,
+    duration_s: float | None = None,
+    drive: tuple[float, float] | None = None,
+    candidates: Literal["detector", "truth"] = "detector",
+    truth_noise_m: float = 0.0,
+    odometry: bool = True,
+) -> list[ScanRecord]:
+    """Run ``scenario`` closed loop with ``preset``'s stages; one ScanRecord per scan.
+
+    ``estimator``, ``tracker`` and ``laser_legs`` override the preset's settings of those
+    stages (``tracker={"estimator_settings": {...}}``);
+    ``drive=(v, w)`` replaces the controller's base command by a constant one (the camera
+    still follows the controller's pan);
+    ``candidates="truth"`` replaces laser_legs by the true target position (plus
+    ``truth_noise_m`` of Gaussian noise) to isolate the tracker from the detector;
+    ``odometry=False`` withholds odometry from the stages (no ego-motion compensation).
+    Raises :class:`StageDidNotAnswer` when the tracker or the controller leaves a scan
+    unanswered (a stage waiting for an input this loop does not send).
+    """
+    sc = load_builtin(scenario) if isinstance(scenario, str) else scenario
+    wanted = stage_settings(preset, True, odometry=odometry, vision=vision != "none")
+    del wanted["vision_verify"]
+    if candidates == "truth":
+        del wanted["laser_legs"]
+    else:
+        wanted["laser_legs"].update(laser_legs or {})
+    wanted["tracker"].update(tracker or {})
+    if estimator is not None:
+        wanted["tracker"]["estimator"] = estimator
+    for values in wanted.values():
+        values.update(sensor_mounts(sc))
+    loop = _Loop(sc, seed, _Pipeline(wanted, vision == "oracle"), drive)
+    if candidates == "truth":
+        loop.truth_noise_m = truth_noise_m
+    loop.odometry = odometry
+    end_ns = loop.sim.duration_ns if duration_s is None else int(duration_s * _NS)
+    while loop.sim.t_ns < end_ns:
+        loop.tick()
+    return loop.records
+
+
+class _Loop:
+    """The simulator, the stages, the oracle and the records of one run."""
+
+    def __init__(self, sc: Scenario, seed, pipe: _Pipeline, drive) -> None:
+        self.sim = Simulation(sc, seed=seed)
+        self.pipe, self.drive = pipe, drive
+        self.fov_rad = math.radians(sc.camera.hfov_deg)
+        self.truth_noise_m: float | None = None  # None: laser_legs finds the candidates
+        self.odometry = True
+        self.model_id = 0  # the oracle's target model (0: none sent yet)
+        self.rng = np.random.default_rng(12345)
+        self.records: list[ScanRecord] = []
+        if drive is not None:
+            self.sim.command_velocity(*drive)
+
+    def tick(self) -> None:
+        """The simulator's next sensor instant: odometry, then the scan through the stages."""
+        msgs = self.sim.tick()
+        if self.odometry:
+            for m in msgs:
+                if isinstance(m, Odometry):
+                    self.pipe.put("sensors/odom", m)
+        scan = next((m for m in msgs if isinstance(m, LaserScan)), None)
+        if scan is not None:
+            truth = next(m for m in msgs if isinstance(m, GroundTruth))
+            self.records.append(self.step(scan, truth))
+
+    def step(self, scan: LaserScan, truth: GroundTruth) -> ScanRecord:
+        """One scan through the stages; the simulator obeys the controller; its record."""
+        pipe, tgt = self.pipe, _target(truth)
+        if not self.model_id and tgt is not None:
+            self.model_id = 1
+            pipe.put("perception/target_model", _oracle_model(scan.stamp_ns, tgt))
+        if self.truth_noise_m is not None:
+            cands = _truth_candidates(scan, tgt, self.truth_noise_m, self.rng)
+            pipe.put("perception/candidates", cands)
+        pipe.put("sensors/scan", scan)
+        got = pipe.answers(scan.stamp_ns)
+        for topic in ("perception/candidates", "tracking/target", "control/cmd_vel"):
+            if topic not in got:
+                raise StageDidNotAnswer(f"no {topic} for the scan stamped {scan.stamp_ns}")
+        verification = None
+        if pipe.vision:
+            cands = got["perception/candidates"]
+            verification = _oracle(cands, truth, self.fov_rad, self.model_id)
+            pipe.put("perception/verification", verification)
+        cmd: VelocityCommand = got["control/cmd_vel"]
+        self.sim.command_velocity(*(self.drive or (cmd.linear_mps, cmd.angular_radps)))
+        pan: PanCommand | None = got.get("control/pan")
+        if pan is not None:
+            self.sim.command_pan(pan.pan_rad)
+        return ScanRecord(
+            stamp_ns=scan.stamp_ns,
+            truth=truth,
+            candidates=got["perception/candidates"],
+            verification=verification,
+            target=got["tracking/target"],
+            people=got.get("tracking/people"),
+            cmd=cmd,
+        )
+
+
+def metrics(records: list[ScanRecord], scenario: str = "", preset: str = "") -> dict[str, Any]:
+    """The eval's metrics of one run (followbot/evaluation.py defines each one)."""
+    run_ = ScenarioRun(scenario=scenario, preset=preset, records=records)
+    if records:
+        run_.sim_s = (records[-1].stamp_ns - records[0].stamp_ns) / _NS
+    return compute_metrics(run_)
+
+
+def world_estimate(r: ScanRecord) -> tuple[float, float]:
+    """The target estimate of ``r`` carried to world coordinates with the true robot pose."""
+    x, y, yaw = r.truth.robot_x_m, r.truth.robot_y_m, r.truth.robot_yaw_rad
     c, s = math.cos(yaw), math.sin(yaw)
-    return (x + c * r.est[0] - s * r.est[1], y + s * r.est[0] + c * r.est[1])
+    return (x + c * r.target.x_m - s * r.target.y_m, y + s * r.target.x_m + c * r.target.y_m)
 
 
-def metrics(records: list[Record], scan_period_s: float = 0.12) -> dict[str, float]:
-    """DESIGN.md metrics of one run (target only)."""
-    err, visible, tracked_close, follow, following = [], 0, 0, 0, 0
-    switches, wrong, on_target = 0, 0, False
-    reacq: list[float] = []
-    hidden_run, hidden_since_visible_at = 0, None
+def world_error_m(r: ScanRecord) -> float:
+    """Distance in the world between the target estimate and the true target."""
+    tgt = _target(r.truth)
+    ex, ey = world_estimate(r)
+    return math.hypot(ex - tgt.x_m, ey - tgt.y_m)
+
+
+def mean_speeds(records: list[ScanRecord]) -> tuple[float, float]:
+    """(estimated, true) mean speed of the target over the scans it is tracked (status
+    ``tracking``), m/s; NaN without such scans."""
+    est, true = [], []
     for r in records:
-        tracked = r.status == "tracking"
-        e = math.inf if r.true is None else math.hypot(r.est[0] - r.true[0], r.est[1] - r.true[1])
-        if r.visible:
-            visible += 1
-            if tracked:
-                err.append(e)
-                if e <= 0.5:
-                    tracked_close += 1
-        if tracked or r.status == "coasting":
-            near_other = [math.hypot(r.est[0] - ox, r.est[1] - oy) for ox, oy in r.others]
-            on_other = bool(near_other) and min(near_other) < min(e, 0.5)
-            if on_other:
-                wrong += 1
-                if on_target:
-                    switches += 1
-                on_target = False
-            elif e <= 0.5:
-                on_target = True
-            if r.true is not None:
-                following += 1
-                follow += 1.0 <= math.hypot(r.true[0], r.true[1]) <= 2.0
-        # re-acquisition after an occlusion of >= 3 scans
-        if not r.visible:
-            hidden_run += 1
-        else:
-            if hidden_run >= 3:
-                hidden_since_visible_at = r.t_s
-            hidden_run = 0
-            if hidden_since_visible_at is not None and tracked and e <= 0.5:
-                reacq.append(r.t_s - hidden_since_visible_at)
-                hidden_since_visible_at = None
-    speeds_est = [math.hypot(r.est[2], r.est[3]) for r in records if r.status == "tracking"]
-    speeds_true = [
-        math.hypot(r.true[2], r.true[3]) for r in records if r.status == "tracking" and r.true
-    ]
-    return {
-        "scans": len(records),
-        "rmse_m": float(np.sqrt(np.mean(np.square(err)))) if err else math.nan,
-        "tracked_visible_share": tracked_close / visible if visible else math.nan,
-        "identity_switches": switches,
-        "wrong_target_s": wrong * scan_period_s,
-        "follow_distance_share": follow / following if following else math.nan,
-        "reacquire_s": max(reacq) if reacq else math.nan,
-        "reacquisitions": len(reacq),
-        "mean_speed_est_mps": float(np.mean(speeds_est)) if speeds_est else math.nan,
-        "mean_speed_true_mps": float(np.mean(speeds_true)) if speeds_true else math.nan,
-    }
+        tgt = _target(r.truth)
+        if r.target.status == "tracking" and tgt is not None:
+            est.append(math.hypot(r.target.vx_mps, r.target.vy_mps))
+            true.append(math.hypot(tgt.robot_vx_mps, tgt.robot_vy_mps))
+    if not est:
+        return math.nan, math.nan
+    return float(np.mean(est)), float(np.mean(true))
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("scenarios", nargs="*")
-    p.add_argument("--estimator", action="append")
+    p.add_argument("scenarios", nargs="*", help="built-in scenarios (default: all of them)")
+    p.add_argument("--preset", default="thesis", help="the stages' preset (default: thesis)")
+    p.add_argument("--estimator", action="append", help="tracker estimator (repeatable)")
     p.add_argument("--vision", default="oracle", choices=["oracle", "none"])
-    p.add_argument("--vision-lag-scans", type=int, default=0)
-    p.add_argument("--duration", type=float)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--vision-lag-scans", type=int, help="the tracker's vision_lag_scans")
+    p.add_argument("--duration", type=float, help="seconds of each scenario (default: all)")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     a = p.parse_args(argv)
     from followbot.services.sim.scenario import builtin_names
 
-    names = a.scenarios or builtin_names()
+    lag = {} if a.vision_lag_scans is None else {"vision_lag_scans": a.vision_lag_scans}
     out = []
-    for name in names:
-        for est in a.estimator or ["particle"]:
-            recs = run(
-                name,
-                estimator=est,
-                vision=a.vision,
-                duration_s=a.duration,
-                tracker={"vision_lag_scans": a.vision_lag_scans},
-            )
-            m = {"scenario": name, "estimator": est, **metrics(recs)}
+    for name in a.scenarios or builtin_names():
+        for est in a.estimator or [None]:
+            recs = run(name, preset=a.preset, estimator=est, vision=a.vision,
+                       duration_s=a.duration, tracker=lag)  # fmt: skip
+            m = metrics(recs, name, a.preset)
+            m["estimator"] = est or "(preset's)"
             out.append(m)
             if not a.json:
-                print(
-                    f"{name:28s} {est:9s} rmse {m['rmse_m']:.3f} m"
-                    f"  tracked {m['tracked_visible_share']:.3f}"
-                    f"  switches {m['identity_switches']}  wrong {m['wrong_target_s']:.1f} s"
-                    f"  follow {m['follow_distance_share']:.2f}  reacq {m['reacquire_s']:.2f} s"
-                    f"  speed {m['mean_speed_est_mps']:.3f}/{m['mean_speed_true_mps']:.3f}"
-                )
+                print(_line(name, est or a.preset, m))
     if a.json:
-        print(json.dumps(out, indent=2))
+        print(json.dumps(out, indent=2, default=str))
     return 0
+
+
+def _line(name: str, est: str, m: dict[str, Any]) -> str:
+    def f(v, fmt):
+        return "-" if v is None else format(v, fmt)
+
+    return (
+        f"{name:28s} {est:13s} rmse {f(m['rmse_m'], '.3f')} m"
+        f"  tracked {f(m['tracked_visible_share'], '.3f')}"
+        f"  switches {m['identity_switches']}  wrong {m['wrong_target_s']:.1f} s"
+        f"  follow {f(m['follow_distance_share'], '.2f')}  reacq {f(m['reacquire_s'], '.2f')} s"
+    )
 
 
 if __name__ == "__main__":

@@ -17,77 +17,27 @@ scan k:
    (the tracker's velocity is the ground velocity expressed in that frame);
 3. ego-motion, when odometry is known at both stamps (poses T0 at t_target, T1 at t_scan):
    ``p1 = R(th0 - th1) p + R(-th1) (t0 - t1)`` (DESIGN.md "Particle filter", the same transform
-   as the tracker's). Odometry poses are interpolated between messages and extrapolated with
-   the last twist for at most ``max_extrapolation_s`` (in lock-step the odometry of a tick may
-   arrive after its scan). When odometry has been seen but does not cover both stamps, no
-   prediction is made; when none has ever been seen (a robot or recording without odometry),
-   the robot is taken as still;
+   as the tracker's). The poses come from the odometry buffer the tracker uses too
+   (services/common/odometry.py: interpolated between messages, a late message put in its
+   place, extrapolated with the last twist for at most ``max_extrapolation_s``). When
+   odometry has been seen but does not cover both stamps, no prediction is made; when none
+   has ever been seen (a robot or recording without odometry), the robot is taken as still;
 4. base -> laser frame: ``q = R(-yaw_l) (p1 - t_l)`` with the laser's pose in the base frame
    (the robot's ``laser_mount`` setting).
 """
 
 from __future__ import annotations
 
-import bisect
 import math
-from collections import deque
 
 from followbot.schemas import LaserScan, Odometry, TrackState
+from followbot.services.common.odometry import OdometryBuffer
 
-from .core import Prediction, wrap_angle
+from .core import Prediction
 
-__all__ = ["OdometryBuffer", "TargetPredictor"]
+__all__ = ["TargetPredictor"]
 
 _NS = 1e-9
-
-
-class OdometryBuffer:
-    """Recent odometry poses; the pose at any stamp they cover (interpolated)."""
-
-    def __init__(self, capacity: int = 512, max_extrapolation_s: float = 0.2) -> None:
-        self._stamps: deque[int] = deque(maxlen=capacity)
-        self._poses: deque[tuple[float, float, float, float, float]] = deque(maxlen=capacity)
-        self.max_extrapolation_s = max_extrapolation_s
-
-    def __len__(self) -> int:
-        return len(self._stamps)
-
-    def add(self, odom: Odometry) -> None:
-        if self._stamps and odom.stamp_ns <= self._stamps[-1]:
-            if odom.stamp_ns == self._stamps[-1]:
-                return
-            # time went backwards (a replay restarted): forget the old history
-            self._stamps.clear()
-            self._poses.clear()
-        self._stamps.append(odom.stamp_ns)
-        self._poses.append((odom.x_m, odom.y_m, odom.yaw_rad, odom.v_mps, odom.w_radps))
-
-    def pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
-        """(x, y, yaw) at ``stamp_ns``, or None when the buffer does not cover it."""
-        stamps = self._stamps
-        if not stamps or stamp_ns < stamps[0]:
-            return None
-        if stamp_ns >= stamps[-1]:
-            dt = (stamp_ns - stamps[-1]) * _NS
-            if dt > self.max_extrapolation_s:
-                return None
-            x, y, yaw, v, w = self._poses[-1]
-            # unicycle with the last twist (exact arc for w != 0)
-            if abs(w) < 1e-9:
-                return x + v * dt * math.cos(yaw), y + v * dt * math.sin(yaw), yaw
-            yaw1 = yaw + w * dt
-            rad = v / w
-            return (
-                x + rad * (math.sin(yaw1) - math.sin(yaw)),
-                y - rad * (math.cos(yaw1) - math.cos(yaw)),
-                yaw1,
-            )
-        j = bisect.bisect_right(stamps, stamp_ns)  # stamps[j-1] <= stamp < stamps[j]
-        t0, t1 = stamps[j - 1], stamps[j]
-        x0, y0, a0, _, _ = self._poses[j - 1]
-        x1, y1, a1, _, _ = self._poses[j]
-        f = (stamp_ns - t0) / (t1 - t0)
-        return x0 + f * (x1 - x0), y0 + f * (y1 - y0), a0 + f * wrap_angle(a1 - a0)
 
 
 class TargetPredictor:

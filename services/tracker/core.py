@@ -42,11 +42,12 @@ from followbot.schemas import (
     Verification,
 )
 from followbot.services.common.geometry import Pose, se2_change, transform_points
+from followbot.services.common.odometry import OdometryBuffer
 from followbot.services.runtime.mount import LaserMount, candidates_in_base
 
 from . import report
 from .association import Association, Associator
-from .egomotion import OdometryBuffer, thesis_printed_transform
+from .egomotion import thesis_printed_transform
 from .estimators import estimator_factory
 from .identity import Identity, Scan
 from .lifecycle import ScanTime, Track, Tracks
@@ -89,9 +90,7 @@ class Tracker:
         self._make = estimator_factory(s.estimator, s.estimator_settings)
         self._cls = self._make.estimator_class  # its batch steps (update_all, ...)
         self.estimator_name = s.estimator
-        self.odometry = OdometryBuffer(
-            max_extrapolation_ns=int(s.max_odometry_extrapolation_s * _NS)
-        )
+        self.odometry = OdometryBuffer(max_extrapolation_s=s.max_odometry_extrapolation_s)
         self._now = ScanTime()
         self._tracks = Tracks(s, self._make, self._now)
         self.search = Search(s, self._tracks, self._now, mount)
@@ -148,7 +147,7 @@ class Tracker:
     def restart_odometry(self) -> None:
         """The odometry's source restarted with a new clock: forget its history."""
         self.odometry = OdometryBuffer(
-            max_extrapolation_ns=int(self.settings.max_odometry_extrapolation_s * _NS)
+            max_extrapolation_s=self.settings.max_odometry_extrapolation_s
         )
         self.identity.odometry = self.odometry
 

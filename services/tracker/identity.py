@@ -41,8 +41,8 @@ import numpy as np
 
 from followbot.schemas import TargetModel, Verification, VerifiedCandidate
 from followbot.services.common.geometry import Pose, se2_change, transform_points
+from followbot.services.common.odometry import OdometryBuffer
 
-from .egomotion import OdometryBuffer
 from .lifecycle import ScanTime, Track, Tracks
 from .search import Search
 from .settings import TrackerSettings

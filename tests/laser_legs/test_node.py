@@ -22,7 +22,7 @@ from followbot.schemas import (
     encode,
 )
 from followbot.services.laser_legs.node import LaserLegsSettings, setup
-from followbot.services.laser_legs.prediction import OdometryBuffer, TargetPredictor
+from followbot.services.laser_legs.prediction import TargetPredictor
 from followbot.services.laser_legs.scene import make_scan, person_legs
 from followbot.services.runtime.bus import FakeNetwork
 from followbot.services.runtime.clock import ClockSettings
@@ -121,6 +121,20 @@ def test_criterion_3_compensates_ego_motion():
     assert h.predictor.skipped == 1
 
 
+def test_late_odometry_takes_its_place_and_criterion_3_still_compensates():
+    """Odometry delivered out of order (within the clock guard's tolerance) joins the history
+    at its stamp: the poses at the target's and the scan's stamps stay known."""
+    h = Harness()
+    h.put("sensors/odom", Odometry(stamp_ns=0, x_m=0.0, y_m=0.0, yaw_rad=0.0))
+    h.put("sensors/odom", Odometry(stamp_ns=200 * MS, x_m=0.0, y_m=0.0, yaw_rad=math.pi / 2))
+    h.put("sensors/odom", Odometry(stamp_ns=100 * MS, x_m=0.0, y_m=0.0, yaw_rad=math.pi / 4))
+    h.put("tracking/target", target(0, -0.8, 1.5))  # (1.5, 0.8) before the 90 deg turn
+    h.put("sensors/scan", two_people(200 * MS))
+    (c,) = h.out[-1].candidates
+    assert math.hypot(c.x_m - 1.5, c.y_m - 0.8) < 0.1
+    assert (h.predictor.used, h.predictor.skipped) == (1, 0)
+
+
 def test_a_coasting_target_does_not_gate_the_legs():
     """A target the tracker has missed may be anywhere near its prediction, or the prediction
     may be a rollback's old snapshot: gating on it (0.4 m) deleted the target's own legs and lost
@@ -171,19 +185,6 @@ def test_the_prediction_is_the_tracker_s_filter_estimate_without_its_lone_leg_sh
     t = msgspec.structs.replace(target(0, 2.1, 0.8), shift_x_m=0.1, shift_y_m=-0.05)
     p.add_target(t)
     assert p.predict(two_people(100 * MS)) == pytest.approx((2.0, 0.85))
-
-
-def test_odometry_interpolates_and_extrapolates_with_the_twist():
-    b = OdometryBuffer(max_extrapolation_s=0.2)
-    b.add(Odometry(stamp_ns=0, x_m=0.0, y_m=0.0, yaw_rad=3.0))
-    b.add(Odometry(stamp_ns=100 * MS, x_m=1.0, y_m=2.0, yaw_rad=-3.0, v_mps=1.0, w_radps=0.0))
-    x, y, yaw = b.pose_at(50 * MS)
-    assert (x, y) == pytest.approx((0.5, 1.0))
-    assert math.cos(yaw) == pytest.approx(-1.0, abs=1e-3)  # across the +-pi seam
-    x, y, _ = b.pose_at(200 * MS)
-    assert (x, y) == pytest.approx((1.0 + 0.1 * math.cos(-3.0), 2.0 + 0.1 * math.sin(-3.0)))
-    assert b.pose_at(400 * MS) is None
-    assert b.pose_at(-1) is None
 
 
 def test_a_failing_detector_still_answers_the_scan(monkeypatch):

@@ -9,7 +9,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from followbot.research.closedloop import metrics, run, world_estimate
+from followbot.research.closedloop import metrics, run, world_error_m
 from followbot.schemas import Candidate, Odometry, PersonCandidates
 from followbot.services.runtime.compose import PRESETS
 from followbot.services.runtime.plugins import UnknownPlugin
@@ -151,14 +151,10 @@ def test_a_person_standing_still_stays_put_in_the_world_while_the_robot_drives(n
         truth_noise_m=0.01,
         vision="none",
     )
-    errs = [
-        math.hypot(*(a - b for a, b in zip(world_estimate(r), r.true_world, strict=True)))
-        for r in records
-        if r.status == "tracking"
-    ]
+    errs = [world_error_m(r) for r in records if r.target.status == "tracking"]
     assert len(errs) == len(records) == 26
     assert max(errs) < 0.05, errs
-    assert records[-1].robot[2] > 1.2
+    assert records[-1].truth.robot_yaw_rad > 1.2
 
 
 # --------------------------------------------------------------------------- kalman_window

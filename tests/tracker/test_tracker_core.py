@@ -23,7 +23,6 @@ from followbot.schemas import (
     encode,
 )
 from followbot.services.tracker.core import (
-    OdometryBuffer,
     Tracker,
     TrackerSettings,
     se2_change,
@@ -96,26 +95,6 @@ def test_se2_change_composes_and_inverts(a, b, c, x, y):
 
 def odom(stamp_ns, x, y, yaw, v=0.0, w=0.0):
     return Odometry(stamp_ns=stamp_ns, x_m=x, y_m=y, yaw_rad=yaw, v_mps=v, w_radps=w)
-
-
-def test_odometry_interpolates_at_the_scan_stamp_across_the_yaw_wrap():
-    buf = OdometryBuffer()
-    buf.add(odom(0, 0.0, 0.0, 3.1))
-    buf.add(odom(100 * MS, 1.0, 2.0, -3.1))  # crossed +-pi: 0.083 rad of turn, not 6.2
-    x, y, th = buf.pose_at(25 * MS)
-    assert (x, y) == pytest.approx((0.25, 0.5))
-    assert math.remainder(th - 3.1, 2 * math.pi) == pytest.approx((2 * math.pi - 6.2) / 4)
-
-
-def test_odometry_out_of_order_extrapolation_and_gaps():
-    buf = OdometryBuffer(max_extrapolation_ns=50 * MS)
-    buf.add(odom(100 * MS, 1.0, 0.0, 0.0, v=1.0))
-    buf.add(odom(0, 0.0, 0.0, 0.0, v=1.0))  # arrives late, goes first
-    assert buf.pose_at(50 * MS)[0] == pytest.approx(0.5)
-    assert buf.pose_at(140 * MS)[0] == pytest.approx(1.04)  # along the last twist
-    assert buf.pose_at(200 * MS) is None  # too far ahead
-    assert buf.pose_at(-1) is None  # before the first message
-    assert OdometryBuffer().pose_at(0) is None
 
 
 # --------------------------------------------------------------------------- resampling
