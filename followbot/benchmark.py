@@ -681,9 +681,16 @@ def _git_commit() -> str | None:
             ["git", "-C", str(Path(__file__).resolve().parents[1]), "rev-parse", "--short", "HEAD"],
             capture_output=True, text=True, timeout=10,
         )  # fmt: skip
+        dirty = subprocess.run(
+            ["git", "-C", str(Path(__file__).resolve().parents[1]), "status", "--porcelain",
+             "--untracked-files=no"],
+            capture_output=True, text=True, timeout=10,
+        )  # fmt: skip
     except (OSError, subprocess.TimeoutExpired):
         return None
-    return out.stdout.strip() or None
+    if not out.stdout.strip():
+        return None
+    return out.stdout.strip() + (" with uncommitted changes" if dirty.stdout.strip() else "")
 
 
 # --------------------------------------------------------------------------- report
@@ -979,7 +986,7 @@ def plots(result: dict, runs: dict[str, dict[str, LogRun]], out: Path) -> list[P
             ys = [v["logs"].get(log, {}).get("false_people_per_scan") or 0.0 for log in logs]
             ax.bar([i + k * width for i in range(len(logs))], ys, width, label=preset)
         ax.set_xticks([i + 0.4 - width / 2 for i in range(len(logs))])
-        ax.set_xticklabels([log.split("/", 1)[1] for log in logs], rotation=40, ha="right")
+        ax.set_xticklabels([log.removeprefix("carmen/") for log in logs], rotation=40, ha="right")
         ax.set_ylabel("false people per scan")
         ax.set_title("people published where nobody walks")
         ax.legend()
