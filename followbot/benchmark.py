@@ -121,6 +121,12 @@ VIDEO_DIRS = (
     Path("/usr/share/doc/opencv-doc/examples/data"),
 )
 HAS_TARGET = ("tracking", "coasting")
+#: How long a scan waits for the stages' answers (s): generous, for a loaded machine; a scan
+#: left unanswered goes on without the answer and is counted (stage_timeouts).
+ANSWER_TIMEOUT_S = 10.0
+#: A stage that leaves this many scans in a row unanswered is broken: the run of that
+#: recording stops and is reported as skipped, with the end of the stage's log.
+GIVE_UP_AFTER = 5
 
 
 class BenchmarkError(RuntimeError):
@@ -231,7 +237,8 @@ def track_log(
     try:
         done = run_pipeline(
             rec, STAGES, settings, out, max_scans=max_scans, on_people=on_people,
-            on_target=on_target, label=label,
+            on_target=on_target, label=label, timeout_s=ANSWER_TIMEOUT_S,
+            give_up_after=GIVE_UP_AFTER,
         )  # fmt: skip
     except (PipelineError, RecordingError) as exc:
         raise BenchmarkError(str(exc)) from None
@@ -486,7 +493,11 @@ class Benchmark:
                 carmen_runs.append(run)
                 out["logs"][f"carmen/{name}"] = false_people_figures([run])
         if carmen_runs:
-            out["carmen_all"] = false_people_figures(carmen_runs)
+            out["carmen_all"] = {
+                **false_people_figures(carmen_runs),
+                "logs": len(carmen_runs),
+                "of": len(logs),
+            }
         negative = self.data / "leg_tracker" / "negative_2.bag"
         topics = HELD_OUT_NEGATIVE_TOPICS[: QUICK["negative_topics"] if self.quick else None]
         neg_runs = []
@@ -501,7 +512,11 @@ class Benchmark:
                 neg_runs.append(run)
                 out["logs"][key] = false_people_figures([run])
         if neg_runs:
-            out["negative_2_all"] = false_people_figures(neg_runs)
+            out["negative_2_all"] = {
+                **false_people_figures(neg_runs),
+                "logs": len(neg_runs),
+                "of": len(topics),
+            }
         if out["logs"]:
             self.results["false_people"][preset] = out
 
@@ -719,7 +734,14 @@ def summary_rows(result: dict) -> list[tuple[str, dict[str, str]]]:
     add("tracker estimator", lambda p: meta[p].get("tracker", {}).get("estimator", "-"))
 
     def fp(group: str, key: str, fmt):
-        return lambda p: fmt(result["false_people"].get(p, {}).get(group, {}).get(key))
+        def cell(p: str) -> str:
+            f = result["false_people"].get(p, {}).get(group, {})
+            text = fmt(f.get(key))
+            if f and f["logs"] < f["of"]:  # a recording failed: say the figure lacks it
+                text += f" ({f['logs']} of {f['of']} recordings)"
+            return text
+
+        return cell
 
     add("CARMEN: false people per scan", fp("carmen_all", "false_people_per_scan", _num))
     add("CARMEN: scans with a false person", fp("carmen_all", "scans_with_false_person", _pct))
@@ -932,15 +954,25 @@ def _throughput_md(d: dict) -> list[str]:
         "included; x real time: the recording's duration over the time taken. On a shared "
         "machine these vary from run to run.",
         "",
-        "| preset | recording | scans | s | scans/s | x real time |",
-        "|---|---|---|---|---|---|",
+        "| preset | recording | scans | s | scans/s | x real time | unanswered scans |",
+        "|---|---|---|---|---|---|---|",
     ]
+    unanswered = 0
     for preset, runs in d.items():
         for name, r in runs.items():
+            late = ", ".join(f"{s} {n}" for s, n in r["stage_timeouts"].items()) or "-"
+            unanswered += sum(r["stage_timeouts"].values())
             lines.append(
                 f"| {preset} | {name} | {r['scans']} | {r['seconds']} | "
-                f"{_num(r['scans_per_s'], 0)} | {_num(r['x_real_time'], 1)} |"
+                f"{_num(r['scans_per_s'], 0)} | {_num(r['x_real_time'], 1)} | {late} |"
             )
+    if unanswered:
+        lines += [
+            "",
+            f"{unanswered} scans went on without a stage's answer (after "
+            f"{ANSWER_TIMEOUT_S:.0f} s): the figures of those recordings may differ from run "
+            "to run (a loaded machine, or a stage that failed on them: see its log in runs/).",
+        ]
     return [*lines, "", "![throughput](throughput.png)", ""]
 
 
