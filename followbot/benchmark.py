@@ -75,6 +75,8 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import msgspec
+
 from followbot import progress
 
 __all__ = [
@@ -176,6 +178,8 @@ class LogRun:
     timeouts: dict[str, int] = field(default_factory=dict)
     skipped: dict[str, int] = field(default_factory=dict)
     """Records of the file not read, by reason."""
+    laser_mount: str = ""
+    """The laser's mount pose the stages were given, and where it came from."""
 
     @property
     def span_s(self) -> float:
@@ -190,6 +194,7 @@ class LogRun:
             "recording_s": round(self.span_s, 1),
             "x_real_time": _r(self.span_s / self.seconds if self.seconds > 0 else None, 1),
             "stage_timeouts": self.timeouts,
+            "laser_mount": self.laser_mount,
         }
 
 
@@ -208,6 +213,7 @@ def track_log(
     from followbot.bags import RecordingError, open_recording
     from followbot.track import (
         PipelineError,
+        laser_mount_of,
         open_with_defaults,
         run_pipeline,
         tracking_settings,
@@ -226,7 +232,16 @@ def track_log(
     settings = tracking_settings(preset, STAGES, False, overrides, odometry=odometry)
     if isinstance(settings, str):
         raise BenchmarkError(settings)
-    run = LogRun(log=label)
+    # where the laser sits, found as `followbot track` finds it (a bag's tf, a CARMEN log's
+    # ROBOTLASER records, else the base's origin)
+    try:
+        mount, source = laser_mount_of(rec, None, "base_link", None)
+    except RecordingError as exc:
+        raise BenchmarkError(str(exc)) from None
+    if not mount.is_identity:
+        for stage in settings.values():
+            stage["laser_mount"] = msgspec.to_builtins(mount)
+    run = LogRun(log=label, laser_mount=f"{mount.describe()} ({source})")
 
     def on_people(m, _payload: bytes) -> None:
         run.people[m.stamp_ns] = [(t.id, t.x_m, t.y_m) for t in m.tracks]
@@ -410,15 +425,15 @@ class Benchmark:
     # ------------------------------------------------------------------ detectors
 
     def detectors(self) -> None:
-        from followbot.services.laser_legs.detectors import REGISTRY
-        from followbot.services.laser_legs.node import LaserLegsSettings, build_detector
-        from followbot.services.laser_legs.realdata import (
+        from followbot.research.realdata import (
             HELD_OUT_NEGATIVE_TOPICS,
             HELD_OUT_POSITIVES,
             read_negative,
             read_positive,
             score,
         )
+        from followbot.services.laser_legs.detectors import REGISTRY
+        from followbot.services.laser_legs.node import LaserLegsSettings, build_detector
 
         leg = self.data / "leg_tracker"
         names = HELD_OUT_POSITIVES[: QUICK["positives"]] if self.quick else HELD_OUT_POSITIVES
@@ -478,7 +493,7 @@ class Benchmark:
         return logs[: QUICK["carmen_logs"]] if self.quick else logs
 
     def false_people(self, preset: str) -> None:
-        from followbot.services.laser_legs.realdata import HELD_OUT_NEGATIVE_TOPICS
+        from followbot.research.realdata import HELD_OUT_NEGATIVE_TOPICS
 
         out = {"logs": {}}
         logs = self.carmen_logs()
