@@ -4,14 +4,15 @@
     followbot benchmark --all-presets --output out/bench-all
     followbot benchmark --only detectors legs360 --quick
 
-Reads the recordings of DATA_DIR (default: ../shared/data beside the repository; see each
-folder's README) and writes DIR/benchmark.md, DIR/benchmark.json and PNG plots. Each
-recording goes through the pipeline a user gets -- laser_legs and tracker as processes over
-Zenoh in lock-step with the recording, exactly as ``followbot track`` runs them, with the
-chosen preset and no camera (the target is then the nearest person ahead: tracker ``acquire:
-nearest``, at most identity.acquire_range_m away and identity.acquire_bearing_deg either side
-of straight ahead, at the first scan with such a candidate). A section whose data is missing
-is skipped with the reason, in the report and on stderr.
+Reads the recordings of DATA_DIR (default: $FOLLOWBOT_DATA, else ../shared/data beside the
+repository; see each folder's README) and writes DIR/benchmark.md, DIR/benchmark.json and PNG
+plots. Each recording goes through the pipeline a user gets -- laser_legs and tracker as
+processes over Zenoh in lock-step with the recording, exactly as ``followbot track`` runs
+them, with the chosen preset and no camera (the target is then the nearest person ahead:
+tracker ``acquire: nearest``, at most identity.acquire_range_m away and
+identity.acquire_bearing_deg either side of straight ahead, at the first scan with such a
+candidate). A section whose data is missing is skipped with the reason, in the report and on
+stderr.
 
 Sections (``--only`` picks some):
 
@@ -136,7 +137,10 @@ class BenchmarkError(RuntimeError):
 
 
 def default_data_dir() -> Path:
-    """../shared/data beside the repository (the followbot package's parent folder)."""
+    """$FOLLOWBOT_DATA, else ../shared/data beside the repository (the followbot package's
+    parent folder)."""
+    if env := os.environ.get("FOLLOWBOT_DATA"):
+        return Path(env)
     return Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
