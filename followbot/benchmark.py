@@ -65,13 +65,16 @@ docs/benchmark.md explains the figures and holds today's table for every preset.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
+import io
 import json
 import math
 import os
 import subprocess
 import sys
 import time
+import traceback
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -583,7 +586,9 @@ class Benchmark:
         res: dict = {"video": str(video), "boxes": str(boxes), "verifiers": {}}
         for name, presets in by_verifier.items():
             try:
-                summary = appearance_summary(video, boxes, name, quick=self.quick)
+                summary = appearance_summary(
+                    video, boxes, name, self.out / f"appearance_{name}.json", quick=self.quick
+                )
             except BenchmarkError as exc:
                 self.skip(f"appearance: {name}", str(exc))
                 continue
@@ -619,7 +624,12 @@ class Benchmark:
 
     def _timed(self, section: str, fn, *args) -> None:
         t0 = time.monotonic()
-        fn(*args)
+        try:
+            fn(*args)
+        except Exception as exc:  # a fault in one section must not lose the others' figures
+            traceback.print_exc()
+            where = f"{section}: {args[0]}" if args else section
+            self.skip(where, f"failed: {type(exc).__name__}: {exc} (traceback on stderr)")
         self.section_s[section] = round(self.section_s.get(section, 0.0) + time.monotonic() - t0, 1)
 
     def meta(self, seconds: float) -> dict:
@@ -651,52 +661,44 @@ def _service_default(key: str):
     return _service_defaults()[key]
 
 
-def appearance_summary(video: Path, boxes: Path, verifier_name: str, *, quick: bool) -> dict:
-    """``followbot appearance VIDEO BOXES --verifier NAME --lags 25,100 --frames 0:400`` with
-    its other defaults, as a summary dict."""
-    from followbot.appearance import _service_defaults, build_parser
-    from followbot.services.vision_verify.footage import (
-        BoxFileError,
-        FootageError,
-        evaluate,
-        read_boxes,
-    )
-    from followbot.services.vision_verify.verifiers import make_verifier
+def appearance_summary(
+    video: Path, boxes: Path, verifier_name: str, out: Path, *, quick: bool
+) -> dict:
+    """``followbot appearance VIDEO BOXES --verifier NAME --lags 25,100 --frames 0:400 --json
+    OUT`` (itself, so every other option is its default), as its summary dict. Its table goes
+    nowhere (the report has it); its progress and errors go to stderr as usual."""
+    from followbot import appearance
 
-    defaults = build_parser()
-    service = _service_defaults()
-    frames = QUICK["appearance_frames"] if quick else APPEARANCE_FRAMES
-    try:
-        verifier = make_verifier(verifier_name, {})
-        box_file = read_boxes(boxes)
-    except (BoxFileError, ValueError) as exc:
-        raise BenchmarkError(str(exc)) from None
-    shown = [0.0]
+    first, end = QUICK["appearance_frames"] if quick else APPEARANCE_FRAMES
+    argv = [
+        str(video), str(boxes), "--verifier", verifier_name, "--frames", f"{first}:{end}",
+        "--lags", ",".join(map(str, APPEARANCE_LAGS)), "--json", str(out),
+    ]  # fmt: skip
+    err = _LastLine(sys.stderr)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        code = appearance.main(argv)
+    if code != 0:
+        raise BenchmarkError(f"followbot appearance exited {code}: {err.last}")
+    return json.loads(out.read_text())
 
-    def on_frame(f: int, first: int, end: int) -> None:
-        now = time.monotonic()
-        if f + 1 == end or now - shown[0] >= (0.3 if progress.on_terminal() else 10.0):
-            shown[0] = now
-            progress.show(f"  appearance {verifier_name}: frame {f + 1}/{end} "
-                          + progress.count_bar(f + 1 - first, end - first))  # fmt: skip
 
-    try:
-        report = evaluate(
-            video, box_file, verifier, lags=APPEARANCE_LAGS, frames=frames,
-            min_visible=defaults.get_default("min_visible"),
-            occlusion=defaults.get_default("occlusion") == "bottom",
-            adapt_rate=defaults.get_default("adapt_rate"),
-            adapt_when=defaults.get_default("adapt_when"),
-            adapt_max_distance=service["adapt_max_distance"],
-            adapt_margin=service["adapt_margin"], on_frame=on_frame,
-        )  # fmt: skip
-    except (FootageError, ValueError) as exc:
-        raise BenchmarkError(str(exc)) from None
-    finally:
-        progress.finish()
-    summary = report.summary()
-    summary["boxes_file"] = box_file.summary()
-    return summary
+class _LastLine(io.TextIOBase):
+    """Passes writes on to ``stream``, keeping the last non-empty line (an error's reason)."""
+
+    def __init__(self, stream) -> None:
+        self.stream, self.last = stream, ""
+
+    def write(self, text: str) -> int:
+        lines = [x for x in text.replace("\r", "\n").splitlines() if x.strip()]
+        if lines:
+            self.last = lines[-1].strip()
+        return self.stream.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:
+        return self.stream.isatty()
 
 
 def _acquire_rule() -> str:
