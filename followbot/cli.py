@@ -10,7 +10,7 @@ followbot settings [--markdown FILE | --check FILE]             settings referen
 followbot demo                                                  live pipeline smoke
 followbot bench [--json FILE]                                   benchmarks
 followbot appearance VIDEO BOXES [--lags 25,100] ...            a verifier on boxed footage
-followbot benchmark [DATA_DIR] --output DIR [--all-presets]     the real-data suite
+followbot benchmark [DATA_DIR] [--all-presets] [--quick] ...    the real-data suite: report
 followbot realstats [--data DIR] [--sim] [--json FILE]          real vs simulated laser figures
 """
 
@@ -127,7 +127,11 @@ PASSTHROUGH: dict[str, tuple[str, str, str]] = {
         "laser statistics of the real recordings, and of the simulator side by side",
     ),
     "certs": ("followbot.certs", "main", "a CA and per-service certificates for secure Zenoh"),
-    "benchmark": ("followbot.benchmark", "main", "the real-data suite: detectors, logs, footage"),
+    "benchmark": (
+        "followbot.benchmark",
+        "main",
+        "the real-data suite: detectors, false people, legs360, footage, id churn (report)",
+    ),
     "settings": (
         "followbot.settingsdoc",
         "main",

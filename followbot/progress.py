@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["bar", "finish", "on_terminal", "show"]
+__all__ = ["bar", "count_bar", "finish", "on_terminal", "show"]
 
 
 def on_terminal() -> bool:
@@ -29,3 +29,9 @@ def bar(done: float, total: float, width: int = 30) -> str:
     frac = min(max(done / total, 0.0), 1.0) if total else 1.0
     n = int(frac * width)
     return f"[{'#' * n}{'.' * (width - n)}] {done:5.1f}/{total:.0f} s"
+
+
+def count_bar(done: int, total: int, width: int = 30) -> str:
+    """``[#####.....]`` for ``done`` of ``total`` items."""
+    n = int(width * min(max(done / total, 0.0), 1.0)) if total else width
+    return f"[{'#' * n}{'.' * (width - n)}]"

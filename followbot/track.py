@@ -31,6 +31,8 @@ import os
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from followbot import progress
@@ -98,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.scan_topic is None:
         # The recording says which of its topics are the scans (and odometry): open it first.
         try:
-            rec = _open_with_defaults(args.file, remaps)
+            rec = open_with_defaults(args.file, remaps)
         except (RecordingError, ValueError) as exc:
             print(f"followbot track: {exc}", file=sys.stderr)
             print("followbot track: say which topic holds the scans with --scan-topic",
@@ -106,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     odometry = bool(args.odom_topic) if rec is None else "sensors/odom" in rec.mapping.values()
     stages = ["laser_legs", "tracker"] + (["vision_verify"] if args.image_topic else [])
-    settings = _stage_settings(
+    settings = tracking_settings(
         args.preset, stages, bool(args.image_topic), args.set, odometry=odometry
     )
     if isinstance(settings, str):
@@ -197,9 +199,9 @@ def _scan_frame(rec) -> str | None:
     return None
 
 
-def _open_with_defaults(path: str, remaps: dict[str, str]):
-    """The recording with its default scan source (and odometry, if it has one), plus what
-    ``remaps`` names."""
+def open_with_defaults(path: str, remaps: dict[str, str]):
+    """Open ``path`` for tracking: the recording with its default scan source (and
+    odometry, if it has one), plus what ``remaps`` names."""
     from followbot.bags import RecordingError, open_recording
 
     rec = open_recording(path, remaps)
@@ -216,9 +218,12 @@ def _open_with_defaults(path: str, remaps: dict[str, str]):
     return rec
 
 
-def _stage_settings(
+def tracking_settings(
     preset: str, stages: list[str], vision: bool, overrides: list[str], *, odometry: bool
-):
+) -> dict | str:
+    """Each of ``stages``' settings for a lock-step run of ``preset`` with ``overrides``
+    (``SERVICE.KEY=VALUE``); without vision the target is the nearest person ahead. A bad
+    override gives the reason (str) instead. An unknown preset raises RunError."""
     from followbot.runner import stage_settings
     from followbot.services.runtime.settings import SettingsError, apply_overrides
 
@@ -237,8 +242,49 @@ def _stage_settings(
     return settings
 
 
-def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int:
-    from followbot.mcapio import McapTopicWriter
+class PipelineError(RuntimeError):
+    """The stages could not run the recording (one failed to start, exited, or stopped
+    answering); says why, with the last lines of its log."""
+
+
+@dataclass
+class PipelineRun:
+    """What :func:`run_pipeline` did."""
+
+    scans: int
+    """Scans sent (each answered by the stages or timed out)."""
+    scan_stamps: list[int]
+    """Their stamps, in the order sent."""
+    seconds: float
+    """From the first scan sent to the last one answered (start-up not included)."""
+    timeouts: dict[str, int]
+    """Stage -> scans it did not answer within the timeout."""
+
+    @property
+    def scans_per_s(self) -> float:
+        return self.scans / self.seconds if self.seconds > 0 else float("nan")
+
+
+def run_pipeline(
+    rec,
+    stages: list[str],
+    settings: dict,
+    out: Path,
+    *,
+    max_scans: int | None = None,
+    timeout_s: float = 5.0,
+    on_people: Callable | None = None,
+    on_target: Callable | None = None,
+    label: str = "tracking",
+    robot: str | None = None,
+    give_up_after: int | None = None,
+) -> PipelineRun:
+    """Run ``rec`` (a :class:`followbot.bags.Recording`) through ``stages`` started as
+    processes with ``settings`` ({stage: settings}), in lock-step, their settings files and
+    logs in ``out``. ``on_people(msg, payload)`` / ``on_target(msg, payload)`` get each
+    tracking/people and tracking/target message (People, TrackState) as published, from
+    Zenoh's threads. Raises :class:`PipelineError` when a stage fails: it exits, or leaves
+    ``give_up_after`` (default :data:`GIVE_UP_SCANS`) scans in a row unanswered."""
     from followbot.runner import StageProcesses
     from followbot.services.runtime.bus import ZenohBus
     from followbot.services.runtime.clock import ClockSettings
@@ -247,22 +293,92 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
     from followbot.services.runtime.session import free_loopback_endpoint, open_session
     from followbot.services.runtime.settings import NodeSettings, ZenohSettings
 
+    give_up_after = give_up_after or GIVE_UP_SCANS
     out.mkdir(parents=True, exist_ok=True)
     endpoint = free_loopback_endpoint()
-    robot = f"track{os.getpid()}"
+    robot = robot or f"track{os.getpid()}x{time.monotonic_ns() % 1_000_000}"
     total = sum(n for src, (_, n) in rec.contents.items() if rec.mapping.get(src) == "sensors/scan")
     if max_scans:
         total = min(total, max_scans)
-    writer = McapTopicWriter(out / "tracks.mcap", robot)
-    people_rows: list[list] = []
-    target_rows: list[list] = []
     session = open_session(ZenohSettings(listen=[endpoint]))
     # the recording sets the pace: a gap between its scans is no stamp from the future
     node_settings = NodeSettings(
         robot=robot, health_period_s=3600, clock=ClockSettings(max_ahead_s=None)
     )
     node = Node("track", node_settings, ZenohBus(session))
+    if on_people is not None:
+        node.subscribe("tracking/people", on_people, with_payload=True)
+    if on_target is not None:
+        node.subscribe("tracking/target", on_target, with_payload=True)
+    barrier = LockstepBarrier(node, stages)
+    pubs = {t: node.publisher(t, reliable=True) for t in set(rec.mapping.values())}
+    common = {"robot": robot, "zenoh": {"connect": [endpoint]}, "log_level": "warning"}
+    procs = StageProcesses(out)
+    stamps: list[int] = []
+    t0 = None
+    t1 = time.monotonic()
+    try:
+        for s in stages:
+            procs.start(s, {**common, **settings[s]})
+        deadline = time.monotonic() + 60.0
+        while missing := barrier.wait_alive(0.1):
+            if (s := procs.exited(stages)) is not None:
+                code = procs.procs[s].returncode
+                raise PipelineError(_why(f"{s} exited {code} on start-up", procs, [s]))
+            if time.monotonic() > deadline:
+                raise PipelineError(_why(f"stages did not start: {missing}", procs, missing))
+        time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
+        last_shown = 0.0
+        silent = 0  # scans in a row a stage left unanswered
+        messages = sensor_order(rec.messages())
+        if "sensors/odom" in pubs:
+            messages = odometry_ahead(messages)
+        for topic, message in messages:
+            if t0 is None:
+                t0 = time.monotonic()
+            pubs[topic].put(message)
+            if topic != "sensors/scan":
+                continue
+            stamps.append(message.stamp_ns)
+            late = barrier.wait(message.stamp_ns, timeout_s)
+            silent = silent + 1 if late else 0
+            if silent >= give_up_after:
+                log = ", ".join(str(out / f"{s}.log") for s in late)
+                why = f"{', '.join(late)} answered none of the last {silent} scans (see {log})"
+                raise PipelineError(_why(why, procs, late))
+            t1 = time.monotonic()
+            if t1 - last_shown > 0.5 or len(stamps) == total:
+                last_shown = t1
+                n = len(stamps)
+                progress.show(f"  {label} {n}/{total} scans {progress.count_bar(n, total)}")
+            if max_scans and len(stamps) >= max_scans:
+                break
+            if (s := procs.exited(stages)) is not None:
+                code = procs.procs[s].returncode
+                raise PipelineError(_why(f"{s} exited {code}", procs, [s]))
+        time.sleep(0.2)  # the last tracking/people
+        node.spin_once()  # with what came while a handler ran (queued for the loop)
+    finally:
+        procs.stop()
+        node.close()
+        session.close()
+        progress.finish()
+    return PipelineRun(
+        scans=len(stamps),
+        scan_stamps=stamps,
+        seconds=t1 - t0 if t0 is not None else 0.0,
+        timeouts={s: n for s, n in barrier.timeouts.items() if n},
+    )
 
+
+def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int:
+    from followbot.mcapio import McapTopicWriter
+
+    out.mkdir(parents=True, exist_ok=True)
+    robot = f"track{os.getpid()}"
+    writer = McapTopicWriter(out / "tracks.mcap", robot)
+    people_rows: list[list] = []
+    target_rows: list[list] = []
     most_at_once = [0]
 
     def on_people(m, payload: bytes) -> None:
@@ -278,75 +394,30 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
                 [m.stamp_ns, m.track_id, m.x_m, m.y_m, m.vx_mps, m.vy_mps, m.frame_id]
             )
 
-    node.subscribe("tracking/people", on_people, with_payload=True)
-    node.subscribe("tracking/target", on_target, with_payload=True)
-    barrier = LockstepBarrier(node, stages)
-    pubs = {t: node.publisher(t, reliable=True) for t in set(rec.mapping.values())}
-    common = {"robot": robot, "zenoh": {"connect": [endpoint]}, "log_level": "warning"}
-    procs = StageProcesses(out)
-    scans = 0
     t0 = time.monotonic()
     try:
-        for s in stages:
-            procs.start(s, {**common, **settings[s]})
-        deadline = time.monotonic() + 60.0
-        while missing := barrier.wait_alive(0.1):
-            if (s := procs.exited(stages)) is not None:
-                code = procs.procs[s].returncode
-                raise SystemExit(_fail(f"{s} exited {code} on start-up", procs, [s]))
-            if time.monotonic() > deadline:
-                raise SystemExit(_fail(f"stages did not start: {missing}", procs, missing))
-        time.sleep(0.3)  # alive means subscribed; let the stages' links to each other settle
-        last_shown = 0.0
-        silent = 0  # scans in a row a stage left unanswered
-        messages = sensor_order(rec.messages())
-        if "sensors/odom" in pubs:
-            messages = odometry_ahead(messages)
-        for topic, message in messages:
-            pubs[topic].put(message)
-            if topic != "sensors/scan":
-                continue
-            scans += 1
-            late = barrier.wait(message.stamp_ns, timeout_s)
-            silent = silent + 1 if late else 0
-            if silent >= GIVE_UP_SCANS:
-                log = ", ".join(str(out / f"{s}.log") for s in late)
-                why = f"{', '.join(late)} answered none of the last {silent} scans (see {log})"
-                raise SystemExit(_fail(why, procs, late))
-            now = time.monotonic()
-            if now - last_shown > 0.5 or scans == total:
-                last_shown = now
-                progress.show(f"  tracking {scans}/{total} scans")
-            if max_scans and scans >= max_scans:
-                break
-            if (s := procs.exited(stages)) is not None:
-                code = procs.procs[s].returncode
-                raise SystemExit(_fail(f"{s} exited {code}", procs, [s]))
-        time.sleep(0.2)  # the last tracking/people
-        node.spin_once()  # with what came while a handler ran (queued for the loop)
+        run = run_pipeline(
+            rec, stages, settings, out, max_scans=max_scans, timeout_s=timeout_s,
+            on_people=on_people, on_target=on_target, robot=robot,
+        )  # fmt: skip
+    except PipelineError as exc:
+        print(f"followbot track: {exc}", file=sys.stderr)
+        return 1
     finally:
-        procs.stop()
-        node.close()
-        session.close()
         writer.close()
-    progress.finish()
-    header = ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps", "frame"]
-    for name, rows in (("people.csv", people_rows), ("target.csv", target_rows)):
-        with (out / name).open("w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(header)
-            w.writerows([r[:2] + [f"{v:.4f}" for v in r[2:6]] + r[6:] for r in rows])
+    write_csv(out / "people.csv", people_rows)
+    write_csv(out / "target.csv", target_rows)
     ids = {r[1] for r in people_rows}
     wall = time.monotonic() - t0
+    scans = run.scans
     # A track id is not a person: one person lost and found again gets a new id, so the ids
     # over-count people; the most tracks in one scan is what a scan shows at once.
     plural = "" if len(ids) == 1 else "s"
     print(f"tracked {scans} scans in {wall:.1f} s ({scans / max(wall, 1e-9):.0f} scans/s): "
           f"{len(ids)} person track{plural} (distinct track ids), at most {most_at_once[0]} "
           f"in one scan; target tracked in {len(target_rows)} scans")  # fmt: skip
-    timeouts = {s: n for s, n in barrier.timeouts.items() if n}
-    if timeouts:
-        print(f"  stages that did not answer in time: {timeouts}")
+    if run.timeouts:
+        print(f"  stages that did not answer in time: {run.timeouts}")
     for reason, n in rec.skipped.most_common():
         print(f"  skipped {n}: {reason}")
     for warning in rec.warnings:
@@ -355,6 +426,14 @@ def _track(rec, stages, settings, out: Path, max_scans, timeout_s: float) -> int
         print(f"warning: {rec.path} is damaged: {rec.damage.describe()}", file=sys.stderr)
     print(f"wrote {out / 'tracks.mcap'}, {out / 'people.csv'}, {out / 'target.csv'}")
     return 0
+
+
+def write_csv(path: Path, rows: list[list]) -> None:
+    """``stamp_ns,id,x_m,y_m,vx_mps,vy_mps,frame`` rows (people.csv, target.csv)."""
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps", "frame"])
+        w.writerows([r[:2] + [f"{v:.4f}" for v in r[2:6]] + r[6:] for r in rows])
 
 
 def sensor_order(messages, window: int = 64):
@@ -413,10 +492,9 @@ def odometry_ahead(messages, horizon_ns: int = 1_000_000_000):
 GIVE_UP_SCANS = 3
 
 
-def _fail(why: str, procs, stages) -> int:
+def _why(why: str, procs, stages) -> str:
     tails = "; ".join(f"{s}: {procs.tail(s, 3)}" for s in stages)
-    print(f"followbot track: {why}; {tails}", file=sys.stderr)
-    return 1
+    return f"{why}; {tails}"
 
 
 if __name__ == "__main__":

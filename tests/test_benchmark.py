@@ -1,6 +1,12 @@
-"""``followbot benchmark``: the real-data suite. A quick slice runs here, through the real CLI
-and the real pipeline processes, and fails when a figure falls below the floor set a little
-under what today's defaults measure (docs/benchmark.md has the full figures)."""
+"""followbot benchmark: the real-data suite.
+
+The quick slice (``--quick``) runs once, through the real command and the real pipeline
+(laser_legs and tracker as processes over Zenoh, lock-step), and each figure is held to a
+floor or ceiling a little worse than what it measured when this test was written (the runs
+are lock-step, so the figures repeat exactly on the same code): a change that makes the
+pipeline worse on real data fails here. Improvements pass; then move the bound with them.
+The figure definitions are checked by hand on small made-up runs.
+"""
 
 from __future__ import annotations
 
@@ -9,91 +15,256 @@ import subprocess
 import sys
 
 import pytest
+from conftest import SHARED_DATA
 
-from followbot import benchmark
+from followbot.benchmark import (
+    LogRun,
+    churn_figures,
+    false_people_figures,
+    find_video,
+    preset_names,
+    walker_figures,
+)
 
-DATA = benchmark.default_data_dir()
-
-
-def test_the_target_s_losses_and_id_changes_are_counted_from_the_rows():
-    # people rows (stamp, id, x, y): the target is id 1, lost at stamp 3, taken again as id 2
-    people = [(t, 1, 1.0, 0.0) for t in (1, 2)] + [(t, 2, 1.0, 0.0) for t in (3, 4, 5)]
-    people += [(60_000_000_001, 3, 2.0, 0.0)]
-    target = [(1, 1, 1.0, 0.0), (2, 1, 1.0, 0.0), (4, 2, 1.0, 0.0), (5, 2, 1.0, 0.0)]
-    r = benchmark._judge_people(people, target, scans=6)
-    assert (r["target_lost"], r["target_taken_again"], r["target_id_changes"]) == (2, 1, 1)
-    assert r["new_person_ids_per_minute"] == pytest.approx(3.0, abs=0.1)
-    assert r["target_held_after_first_chosen"] == pytest.approx(4 / 6, abs=1e-3)
-
-
-def test_legs360_walker_and_ghosts_are_judged_against_the_labels(tmp_path):
-    (tmp_path / "legs360").mkdir()
-    (tmp_path / "legs360" / "legs360_labels.csv").write_text(
-        "stamp_ns,scan,x_m,y_m,points\n10,0,1.0,0.1,5\n10,0,1.0,-0.1,5\n20,1,2.0,0.0,4\n"
-    )
-    # scan 10: the walker tracked and followed, plus a ghost; scan 20: only a ghost
-    people = [(10, 1, 1.05, 0.0), (10, 2, -1.0, 0.0), (20, 2, -1.0, 0.0)]
-    target = [(10, 1, 1.05, 0.0), (20, 2, -1.0, 0.0)]
-    r = benchmark._judge_walker(people, target, [10, 20], tmp_path)
-    assert r["walker_tracked"] == 0.5 and r["walker_followed"] == 0.5
-    assert r["false_people_per_scan"] == 1.0 and r["scans_with_a_false_person"] == 1.0
+needs_data = pytest.mark.skipif(
+    not (SHARED_DATA / "leg_tracker").is_dir(), reason=f"real data absent at {SHARED_DATA}"
+)
 
 
-def test_a_missing_data_folder_skips_each_section_with_its_reason(tmp_path):
-    report = benchmark.run(tmp_path, tmp_path / "out", ["default"], list(benchmark.SECTIONS), True)
-    for name in benchmark.SECTIONS:
-        assert "not found" in report["sections"][name]["skipped"], name
-    assert "Skipped:" in benchmark.markdown({**report, "command": "x"})
+def benchmark(*args, timeout=240):
+    return subprocess.run(
+        [sys.executable, "-m", "followbot", "benchmark", *map(str, args)],
+        capture_output=True, text=True, timeout=timeout,
+    )  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
-    if not (DATA / "leg_tracker" / "negative_2.bag").is_file():
-        pytest.skip(f"the real data is not at {DATA} (set FOLLOWBOT_DATA)")
+    """``followbot benchmark --quick``: its exit, its JSON and its output folder."""
+    if not (SHARED_DATA / "leg_tracker").is_dir():
+        pytest.skip(f"real data absent at {SHARED_DATA}")
     out = tmp_path_factory.mktemp("bench")
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "followbot",
-            "benchmark",
-            str(DATA),
-            "--quick",
-            "--output",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
+    p = benchmark(SHARED_DATA, "--quick", "--output", out)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return json.loads((out / "benchmark.json").read_text()), out, p
+
+
+# ----------------------------------------------------------------- the quick slice, real data
+
+#: detector -> (leg recall floor, false candidates per scan ceiling); measured on the quick
+#: slice (positive_6; 100 scans of each held-out negative_2 topic): arc 0.102 / 0.11,
+#: bellotto 0.660 / 5.61, derivative 0.904 / 9.49, iav 0.696 / 4.09, learned 0.983 / 0.56,
+#: thesis 0.564 / 2.06.
+DETECTOR_BOUNDS = {
+    "arc": (0.05, 0.3),
+    "bellotto": (0.61, 6.2),
+    "derivative": (0.85, 10.5),
+    "iav": (0.64, 4.6),
+    "learned": (0.93, 0.75),
+    "thesis": (0.51, 2.4),
+}
+
+
+@pytest.mark.multiprocess
+def test_quick_writes_one_report_with_every_section_and_its_plots(quick):
+    result, out, p = quick
+    text = (out / "benchmark.md").read_text()
+    for heading in ("## Summary", "## Laser detectors", "## False people", "## legs360",
+                    "## demo_stationary", "## Throughput"):  # fmt: skip
+        assert heading in text
+    for png in ("detectors.png", "false_people.png", "demo.png", "throughput.png"):
+        assert (out / png).stat().st_size > 5_000, png
+    assert result["meta"]["quick"] is True
+    assert list(result["meta"]["presets"]) == ["thesis"]
+    assert "carmen/aces-corrected" in result["throughput"]["thesis"]
+    # each stage's settings and log are kept per run, and the tracks a user can look at
+    run = out / "runs" / "thesis" / "legs360"
+    assert (run / "tracker.log").is_file() and (run / "people.csv").is_file()
+    assert "benchmark.md" in p.stdout
+
+
+@pytest.mark.multiprocess
+def test_every_registered_detector_keeps_its_recall_and_false_candidates(quick):
+    from followbot.services.laser_legs.detectors import REGISTRY
+
+    rows = {r["detector"]: r for r in quick[0]["detectors"]["rows"]}
+    assert set(rows) == set(REGISTRY.names())
+    assert quick[0]["detectors"]["labelled_legs"] == 303  # positive_6, every label paired
+    for name, (recall, false) in DETECTOR_BOUNDS.items():
+        assert rows[name]["leg_recall"] >= recall, rows[name]
+        assert rows[name]["false_candidates_per_scan"] <= false, rows[name]
+
+
+@pytest.mark.multiprocess
+def test_the_pipeline_publishes_no_more_false_people_than_today(quick):
+    fp = quick[0]["false_people"]["thesis"]
+    # measured: aces (first 200 scans) 2.24 per scan, 79.5 % of scans; negative_2
+    # /rear_scan (first 200) 3.40 per scan, 99.5 % of scans
+    aces = fp["logs"]["carmen/aces-corrected"]
+    assert aces["scans"] == 200 and aces["scans_unanswered"] == 0
+    assert aces["false_people_per_scan"] <= 2.6
+    assert aces["scans_with_false_person"] <= 0.85
+    neg = fp["logs"]["negative_2/rear_scan"]
+    assert neg["scans"] == 200 and neg["scans_unanswered"] == 0
+    assert neg["false_people_per_scan"] <= 3.8
+
+
+@pytest.mark.multiprocess
+def test_the_legs360_walker_is_tracked_at_least_as_often_as_today(quick):
+    f = quick[0]["legs360"]["thesis"]
+    assert f["labelled_scans"] == 119
+    # measured: walker tracked 11.8 %, followed 0 %, 5.75 ghosts per scan
+    assert f["walker_tracked"] >= 0.07
+    assert f["ghosts_per_scan"] <= 6.3
+
+
+@pytest.mark.multiprocess
+def test_demo_stationary_churns_no_more_ids_than_today(quick):
+    f = quick[0]["demo"]["thesis"]
+    assert f["scans"] == 300 and f["scans_unanswered"] == 0
+    # measured: 66.4 new ids per minute; the target tracked 25.7 % of the scans after it
+    # was first chosen
+    assert f["new_ids_per_min"] <= 75
+    assert f["target_first_s"] is not None
+    assert f["target_tracked_after_first"] >= 0.2
+
+
+@pytest.mark.multiprocess
+def test_the_histogram_verifier_keeps_its_rank1_on_pets09(quick):
+    result = quick[0]
+    if find_video(None) is None:
+        assert "vtest.avi not found" in json.dumps(result["skipped"])
+        pytest.skip("opencv-doc's vtest.avi is absent: `make opencv-data`")
+    if not (SHARED_DATA / "pets09").is_dir():
+        pytest.skip(f"pets09 absent at {SHARED_DATA}")
+    rows = {(r["protocol"], r["lag"]): r for r in
+            result["appearance"]["verifiers"]["histogram"]["results"]}  # fmt: skip
+    # measured on frames 0-149: one view 77.2 % (lag 25), 42.8 % (lag 100); following
+    # 60.3 %, 47.8 %
+    assert rows[("one view", 25)]["rank1"] >= 0.72
+    assert rows[("one view", 100)]["rank1"] >= 0.37
+    assert rows[("following", 25)]["rank1"] >= 0.55
+    assert rows[("following", 100)]["rank1"] >= 0.42
+
+
+# ----------------------------------------------------------------- missing data, presets
+
+
+def test_every_section_is_skipped_with_its_reason_when_the_data_is_missing(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    p = benchmark(data, "--output", tmp_path / "out", "--video", tmp_path / "none.avi")
+    assert p.returncode == 0, p.stderr
+    result = json.loads((tmp_path / "out" / "benchmark.json").read_text())
+    for section in ("detectors", "false_people", "legs360", "appearance", "demo", "throughput"):
+        assert "skipped" in result[section], section
+    why = {s["what"]: s["why"] for s in result["skipped"]}
+    assert "is absent" in why["detectors"]
+    assert "no CARMEN log" in why["false_people: thesis: carmen"]
+    assert "legs360.bag is absent" in why["legs360: thesis"]
+    assert "pets09" in why["appearance"]
+    assert "demo_stationary_simple_environment.bag is absent" in why["demo: thesis"]
+    assert "## Skipped" in (tmp_path / "out" / "benchmark.md").read_text()
+
+
+def test_all_presets_runs_every_runnable_preset_and_lists_the_refused_one(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "legs360").mkdir()
+    (data / "legs360" / "legs360.bag").write_bytes(b"not a bag")
+    (data / "legs360" / "legs360_labels.csv").write_text("stamp_ns,scan,x_m,y_m,points\n")
+    p = benchmark(data, "--all-presets", "--only", "legs360", "--output", tmp_path / "out")
+    assert p.returncode == 0, p.stderr
+    result = json.loads((tmp_path / "out" / "benchmark.json").read_text())
+    assert list(result["meta"]["presets"]) == ["thesis", "bellotto", "livingston", "ristic"]
+    why = {s["what"]: s["why"] for s in result["skipped"]}
+    for preset in result["meta"]["presets"]:  # each tried it; a broken file is no crash
+        assert "legs360.bag" in why[f"{preset}: legs360"]
+    assert "preset zhuang" in why and "zhuang" in why["preset zhuang"]
+    assert result["detectors"] == {"skipped": "not chosen (--only)"}
+
+
+def test_a_preset_that_cannot_run_and_a_bad_setting_are_refused_before_anything_runs(tmp_path):
+    assert "zhuang" in preset_names()
+    p = benchmark(tmp_path, "--preset", "zhuang", "--output", tmp_path / "a")
+    assert p.returncode == 2
+    assert "zhuang" in p.stderr and not (tmp_path / "a").exists()
+    p = benchmark(tmp_path, "--set", "tracker.bogus=1", "--output", tmp_path / "b")
+    assert p.returncode == 2
+    assert "bogus" in p.stderr and not (tmp_path / "b").exists()
+    p = benchmark(tmp_path / "nowhere", "--output", tmp_path / "c")
+    assert p.returncode == 2 and "no data folder" in p.stderr
+
+
+# ----------------------------------------------------------------- the figures, by hand
+
+S = 1_000_000_000
+
+
+def about(x: float):
+    """The figures are rounded to 3 decimals."""
+    return pytest.approx(x, abs=1e-3)
+
+
+def made_up_run(people: list[list[tuple]], targets: list[tuple | None]) -> LogRun:
+    """A run of one scan a second: ``people[k]`` the tracks (id, x, y) of scan k,
+    ``targets[k]`` its target (status, id, x, y) or None (no answer)."""
+    stamps = [k * S for k in range(len(people))]
+    return LogRun(
+        log="made up",
+        scans=len(stamps),
+        seconds=1.0,
+        stamps=stamps,
+        people=dict(zip(stamps, people, strict=True)),
+        targets={s: t for s, t in zip(stamps, targets, strict=True) if t is not None},
     )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert (out / "benchmark.md").is_file() and (out / "false_people.png").is_file()
-    return json.loads((out / "benchmark.json").read_text())
 
 
-def test_quick_detectors_keep_their_recall_and_false_candidates(quick):
-    rows = {r["detector"]: r for r in quick["sections"]["detectors"]["rows"]}
-    assert rows["thesis"]["leg_recall"] >= 0.45
-    assert rows["thesis"]["false_candidates_per_scan"] <= 2.0
-    assert rows["learned"]["leg_recall"] >= 0.93
-    assert rows["learned"]["false_candidates_per_scan"] <= 2.0
+def test_false_people_count_every_published_person_over_every_scan():
+    a = made_up_run([[(1, 0, 0), (2, 1, 1)], [], [(1, 0, 0)], []], [None] * 4)
+    b = made_up_run([[(7, 0, 0)]], [None])
+    del b.people[0]  # a scan the tracker never answered counts as no person
+    f = false_people_figures([a, b])
+    assert f["scans"] == 5
+    assert f["false_people_per_scan"] == about(3 / 5)
+    assert f["scans_with_false_person"] == about(2 / 5)
+    assert f["most_at_once"] == 2 and f["person_ids"] == 2 and f["scans_unanswered"] == 1
 
 
-def test_quick_pipeline_false_people_stay_under_today_s_ceiling(quick):
-    rows = quick["sections"]["people"]["presets"]["default"]
-    carmen = [r for name, r in rows.items() if not name.startswith(("negative", "legs", "demo"))]
-    assert len(carmen) == 8 and all("error" not in r for r in carmen)
-    mean = sum(r["false_people_per_scan"] for r in carmen) / len(carmen)
-    assert mean <= 3.5
-    assert rows["negative_2:rear_scan"]["false_people_per_scan"] <= 4.2
-    assert rows["legs360"]["walker_tracked"] >= 0.08
-    assert rows["demo_stationary"]["scans_per_s"] > 0
+def test_the_walker_is_the_nearest_track_within_the_radius_and_every_other_is_a_ghost():
+    tracking = ("tracking", 1, 1.0, 0.0)
+    run = made_up_run(
+        [
+            [(1, 1.1, 0.0), (2, 1.3, 0.0), (3, -2.0, 0.0)],  # walker + 2 ghosts
+            [(3, -2.0, 0.0)],  # walker missed, 1 ghost
+            [(1, 1.0, 0.1)],  # walker only
+            [(3, -2.0, 0.0)],  # no label: not counted
+        ],
+        [tracking, ("lost", 1, 0.0, 0.0), tracking, tracking],
+    )
+    walker = {0: (1.0, 0.0), S: (1.0, 0.0), 2 * S: (1.0, 0.0)}
+    f = walker_figures(run, walker, radius_m=0.5)
+    assert f["labelled_scans"] == 3 and f["unlabelled_scans"] == 1
+    assert f["walker_tracked"] == about(2 / 3)
+    assert f["walker_followed"] == about(2 / 3)
+    assert f["ghosts_per_scan"] == about(3 / 3)
+    assert f["scans_with_ghost"] == about(2 / 3)
 
 
-def test_quick_appearance_keeps_its_rank1(quick):
-    app = quick["sections"]["appearance"]
-    if "skipped" in app:
-        pytest.skip(app["skipped"])
-    results = app["verifiers"]["histogram"]["results"]
-    one_view = next(r for r in results if r["protocol"] == "one view" and r["lag"] == 25)
-    assert one_view["rank1"] >= 0.70
+def test_a_loss_and_a_retake_are_counted_from_the_target_status_sequence():
+    t = ("tracking", 4, 1.0, 0.0)
+    c = ("coasting", 4, 1.0, 0.0)
+    lost = ("lost", 4, 0.0, 0.0)
+    init = ("initialising", -1, 0.0, 0.0)
+    targets = [init, init, t, c, lost, None, lost, ("tracking", 9, 1.0, 0.0), lost, lost]
+    people = [[], [], [(4, 1, 0)], [(4, 1, 0)], [], [], [(9, 1, 0)], [(9, 1, 0)], [], []]
+    f = churn_figures(made_up_run(people, targets))
+    assert f["target_first_s"] == 2.0
+    assert f["target_losses"] == 2 and f["target_taken_back"] == 1
+    assert f["lost_s_median"] == 3.0  # lost at 4 s, taken back at 7 s
+    assert f["target_lost_at_end"] is True and f["target_ids"] == 2
+    # of the 7 answered scans from the first choice on, 3 had the target
+    assert f["target_tracked_after_first"] == about(3 / 7)
+    assert f["person_ids"] == 2
+    assert f["new_ids_per_min"] == pytest.approx(2 / (9 / 60), abs=0.1)
+    assert f["scans_unanswered"] == 1

@@ -178,23 +178,23 @@ def test_the_default_sources_are_the_front_laser_and_its_odometry(tmp_path):
 def test_track_without_topics_takes_the_recordings_own_scans_and_odometry(tmp_path):
     from recordings import write_recording
 
-    from followbot.track import _open_with_defaults
+    from followbot.track import open_with_defaults
 
     log = write(tmp_path / "a.log", [odom(0, 0, 0, 0, 0, T0), flaser([1.0] * 180, stamp(1))])
-    assert _open_with_defaults(str(log), {}).mapping == {
+    assert open_with_defaults(str(log), {}).mapping == {
         "FLASER": "sensors/scan", "FLASER/odom": "sensors/odom"
     }  # fmt: skip
-    assert _open_with_defaults(str(log), {"ODOM": "sensors/odom"}).mapping == {
+    assert open_with_defaults(str(log), {"ODOM": "sensors/odom"}).mapping == {
         "FLASER": "sensors/scan", "ODOM": "sensors/odom"
     }  # fmt: skip
     # a followbot recording of scans, odometry, targets and commands: the sensor input only
     mcap = write_recording(tmp_path / "r.mcap", chunks=1, scans_per_chunk=3).path
-    assert _open_with_defaults(str(mcap), {}).mapping == {
+    assert open_with_defaults(str(mcap), {}).mapping == {
         "sensors/scan": "sensors/scan", "sensors/odom": "sensors/odom"
     }  # fmt: skip
     odom_only = write(tmp_path / "b.log", [odom(0, 0, 0, 0, 0, T0)])
     with pytest.raises(RecordingError, match="no topic of it feeds sensors/scan by default"):
-        _open_with_defaults(str(odom_only), {})
+        open_with_defaults(str(odom_only), {})
 
 
 def test_carmen_files_are_known_by_their_name_or_their_first_lines(tmp_path):
