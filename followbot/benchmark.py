@@ -1128,7 +1128,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from followbot.runner import RunError, invalid_stage_settings
+    from followbot.runner import RunError, invalid_stage_settings, preset_stages
     from followbot.track import tracking_settings
 
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -1145,6 +1145,10 @@ def main(argv: list[str] | None = None) -> int:
     presets, refused = [], {}
     pipeline = set(args.only or SECTIONS) & {"false_people", "legs360", "demo"}
     for preset in chosen:
+        if "laser_legs" not in preset_stages(preset):
+            # seed 001 follows from the camera alone; these recordings are laser logs
+            refused[preset] = f"preset {preset} is camera-only: the recordings here have no camera"
+            continue
         try:
             settings = tracking_settings(preset, STAGES, False, args.set, odometry=True)
         except RunError as exc:
