@@ -10,24 +10,13 @@ services/tracker/bench_hybrid.py.
 
 from __future__ import annotations
 
-import statistics
-import time
-
 import numpy as np
+
+from followbot.services.runtime.stats import median_us
 
 from .core import classify, learn_colour, regions
 
 __all__ = ["main"]
-
-
-def _median_us(fn, repeats: int = 200) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e6
 
 
 def _frame() -> np.ndarray:
@@ -48,10 +37,10 @@ def main() -> int:
     img = _frame()
     model = learn_colour(img, (110, 120, 20, 60))
     mask = classify(img, model)
-    stage_us = _median_us(lambda: regions(classify(img, model)))
+    stage_us = median_us(lambda: regions(classify(img, model)))
     print("camera stage (seed 001 3.1-3.2), 320x240 frame, median per frame:")
-    print(f"  classify H,S       {_median_us(lambda: classify(img, model)):8.0f} us")
-    print(f"  regions            {_median_us(lambda: regions(mask)):8.0f} us")
+    print(f"  classify H,S       {median_us(lambda: classify(img, model)):8.0f} us")
+    print(f"  regions            {median_us(lambda: regions(mask)):8.0f} us")
     print(f"  whole stage        {stage_us:8.0f} us   ({stage_us / 1e5:.2%} of a 10 Hz frame)")
     return 0
 

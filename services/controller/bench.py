@@ -15,12 +15,11 @@ to it. Also the scan's conversion to points (done once per scan in the node).
 from __future__ import annotations
 
 import math
-import statistics
-import time
 
 import numpy as np
 
 from followbot.schemas import LaserScan, TrackState
+from followbot.services.runtime.stats import median_us
 
 from .avoid import scan_points, scan_view
 from .core import ControllerSettings, FollowController
@@ -62,27 +61,22 @@ def _scan(case: str) -> LaserScan:
     )
 
 
-def _median_us(fn, repeats: int = 300) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter_ns()
-        fn()
-        times.append(time.perf_counter_ns() - t0)
-    return statistics.median(times) / 1e3
+def _median(fn) -> float:
+    return median_us(fn, 300, warmup=False)
 
 
 def main() -> None:
     target = TrackState(stamp_ns=0, status="tracking", x_m=2.5, y_m=0.0)
     rows = []
     rule = FollowController(ControllerSettings(guard=GuardSettings(enabled=False)))
-    rows.append(("thesis rule alone", _median_us(lambda: rule.on_target(target, 0.12))))
+    rows.append(("thesis rule alone", _median(lambda: rule.on_target(target, 0.12))))
     for case in ("room", "wall", "pillar", "corner"):
         scan = _scan(case)
         pts, view = scan_points(scan), scan_view(scan)
         # (the escape off: standing at the corner, every arc and heading is checked each step)
         ctl = FollowController(ControllerSettings(guard=GuardSettings(wait_s=0.0, escape_m=0.0)))
         reason = ctl.on_target(target, 0.12, pts, view).reason
-        us = _median_us(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
+        us = _median(lambda c=ctl, p=pts, w=view: c.on_target(target, 0.12, p, w))
         rows.append((f"guard, {case} ({reason})", us))
     # the escape (default): planning its end past the corner, once, when it begins; then
     # each step under way (turning towards the end, or driving there with its run checked)
@@ -92,15 +86,13 @@ def main() -> None:
     xy = (target.x_m, target.y_m)
     keep = (view.lo_rad + ESCAPE_VIEW_MARGIN_RAD, view.hi_rad - ESCAPE_VIEW_MARGIN_RAD)
     plan = ctl.guard.geometry.escape_goal  # what the controller calls as the escape begins
-    rows.append(
-        ("escape, planning its end (corner)", _median_us(lambda: plan(pts, xy, True, keep)))
-    )
+    rows.append(("escape, planning its end (corner)", _median(lambda: plan(pts, xy, True, keep))))
     goal = plan(pts, xy, True, keep)
     ahead = (math.hypot(*goal), 0.0)  # facing it: the run there is checked
     toward = ctl.guard.geometry.toward_goal
-    rows.append(("escape, one step driving there", _median_us(lambda: toward(0.75, ahead, pts))))
+    rows.append(("escape, one step driving there", _median(lambda: toward(0.75, ahead, pts))))
     room = _scan("room")
-    rows.append(("scan -> points", _median_us(lambda: scan_points(room))))
+    rows.append(("scan -> points", _median(lambda: scan_points(room))))
     print(f"controller, one command ({BEAMS}-beam scan), median of 300:")
     print("| case | µs |")
     print("|---|---|")

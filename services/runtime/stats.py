@@ -9,7 +9,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["RateLimitedLog", "Window", "percentiles", "rss_mb"]
+__all__ = ["RateLimitedLog", "Window", "median_us", "percentiles", "rss_mb"]
 
 _PAGE_MB = os.sysconf("SC_PAGE_SIZE") / 2**20 if hasattr(os, "sysconf") else 0.0
 
@@ -21,6 +21,19 @@ def rss_mb() -> float:
             return int(f.read().split()[1]) * _PAGE_MB
     except (OSError, ValueError, IndexError):
         return 0.0
+
+
+def median_us(fn, repeats: int = 200, warmup: bool = True) -> float:
+    """Median wall time of ``fn()`` over ``repeats`` calls, in microseconds (benchmarks);
+    ``warmup``: one call first, not timed (caches, lazy imports)."""
+    if warmup:
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter_ns()
+        fn()
+        times.append(time.perf_counter_ns() - t0)
+    return float(np.median(times)) / 1e3
 
 
 def percentiles(values, qs=(50, 99)) -> list[float]:

@@ -11,26 +11,15 @@ prediction through the floor) and two regions of a 320x240 image, against the bu
 from __future__ import annotations
 
 import math
-import statistics
-import time
 
 import numpy as np
 
 from followbot.services.runtime.ground_plane import GroundCamera
+from followbot.services.runtime.stats import median_us
 
 from .estimators.hybrid import HybridFilter, HybridSettings
 
 __all__ = ["main"]
-
-
-def _median_us(fn, repeats: int = 200) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e6
 
 
 def main() -> int:
@@ -44,7 +33,7 @@ def main() -> int:
     for n in (150, 1000):
         rng = np.random.default_rng(1)
         f = HybridFilter(two[0], HybridSettings(particles=n, camera=cam), rng)
-        per[n] = _median_us(lambda f=f: f.step(two, 0.1, rot, trans))
+        per[n] = median_us(lambda f=f: f.step(two, 0.1, rot, trans))
         print(f"  {n:5d} particles    {per[n]:8.0f} us   ({per[n] / 1e5:.2%} of a 10 Hz frame)")
     print(f"  1000 / 150 particles: {per[1000] / per[150]:.1f}x")
     return 0
