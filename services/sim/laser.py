@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 
 from followbot.schemas import LaserScan
@@ -111,78 +112,109 @@ def cast_rays(
     ranges: (N,) float64, ``inf`` where nothing is hit within ``max_range_m``.
     hit: (N,) int64 index of the shape hit: 0..M-1 a segment, M..M+K-1 a circle, -1 none.
     """
-    ox, oy = origin
-    m = segments.shape[0]
-    beams: list[np.ndarray] = []
-    ts: list[np.ndarray] = []
-    ids: list[np.ndarray] = []
-    angles = a0_rad + inc_rad * np.arange(n_beams)
-    cos_a, sin_a = np.cos(angles), np.sin(angles)
+    fan = _Fan(origin, a0_rad, inc_rad, n_beams, max_range_m)
+    hits = [
+        _segment_hits(fan, segments),
+        _circle_hits(fan, circles, id_offset=segments.shape[0]),
+    ]
+    return _nearest_per_beam(n_beams, max_range_m, [h for h in hits if h is not None])
 
-    if m:
-        ax = segments[:, 0] - ox
-        ay = segments[:, 1] - oy
-        bx = segments[:, 2] - ox
-        by = segments[:, 3] - oy
-        ex, ey = bx - ax, by - ay
-        # cull segments wholly out of range: distance from o to the segment > max range
-        ee = ex * ex + ey * ey
-        lam = np.clip(-(ax * ex + ay * ey) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
-        keep = np.flatnonzero(np.hypot(ax + lam * ex, ay + lam * ey) <= max_range_m)
-        if keep.size:
-            ax, ay, ex, ey = ax[keep], ay[keep], ex[keep], ey[keep]
-            phi0 = np.arctan2(ay, ax)
-            dphi = np.arctan2(by[keep], bx[keep]) - phi0
-            dphi = (dphi + math.pi) % _TWO_PI - math.pi  # the arc the segment subtends
-            beam, own, _ = _beam_spans(
-                phi0 + np.minimum(dphi, 0.0), np.abs(dphi), a0_rad, inc_rad, n_beams
-            )
-            dx, dy = cos_a[beam], sin_a[beam]
-            qx, qy, sx, sy = ax[own], ay[own], ex[own], ey[own]
-            denom = dx * sy - dy * sx  # d x e
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inv = 1.0 / denom
-                t = (qx * sy - qy * sx) * inv  # (q x e) / (d x e)
-                u = (qx * dy - qy * dx) * inv  # (q x d) / (d x e)
-            ok = (t > 0.0) & (u >= -1e-9) & (u <= 1.0 + 1e-9)
-            beams.append(beam[ok])
-            ts.append(t[ok])
-            ids.append(keep[own[ok]])
 
-    if circles.shape[0]:
-        wx = circles[:, 0] - ox
-        wy = circles[:, 1] - oy
-        r = circles[:, 2]
-        dist = np.hypot(wx, wy)
-        keep = np.flatnonzero((dist > r) & (dist - r <= max_range_m))
-        if keep.size:
-            wx, wy, r, dist = wx[keep], wy[keep], r[keep], dist[keep]
-            half = np.arcsin(r / dist)
-            beam, own, _ = _beam_spans(
-                np.arctan2(wy, wx) - half, 2 * half, a0_rad, inc_rad, n_beams
-            )
-            qx, qy = wx[own], wy[own]
-            beta = cos_a[beam] * qx + sin_a[beam] * qy  # d . w
-            disc = beta * beta - (dist[own] ** 2 - r[own] ** 2)
-            ok = disc >= 0.0
-            t = beta[ok] - np.sqrt(disc[ok])
-            ok2 = t > 0.0
-            beams.append(beam[ok][ok2])
-            ts.append(t[ok2])
-            ids.append(m + keep[own[ok][ok2]])
+class _Fan(msgspec.Struct, frozen=True):
+    """A uniform fan of rays: beam i from ``origin`` at world angle ``a0 + i * inc``."""
 
+    origin: tuple[float, float]
+    a0_rad: float
+    inc_rad: float
+    n_beams: int
+    max_range_m: float
+
+    def directions(self, beam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        angles = self.a0_rad + self.inc_rad * beam
+        return np.cos(angles), np.sin(angles)
+
+
+_Hits = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""(beam, distance along the beam, shape index) of every intersection found."""
+
+
+def _segment_hits(fan: _Fan, segments: np.ndarray) -> _Hits | None:
+    """Intersections of the fan with the segments [x0, y0, x1, y1] (shape index = row)."""
+    if not segments.shape[0]:
+        return None
+    ox, oy = fan.origin
+    ax = segments[:, 0] - ox
+    ay = segments[:, 1] - oy
+    bx = segments[:, 2] - ox
+    by = segments[:, 3] - oy
+    ex, ey = bx - ax, by - ay
+    # cull segments wholly out of range: distance from o to the segment > max range
+    ee = ex * ex + ey * ey
+    lam = np.clip(-(ax * ex + ay * ey) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
+    keep = np.flatnonzero(np.hypot(ax + lam * ex, ay + lam * ey) <= fan.max_range_m)
+    if not keep.size:
+        return None
+    ax, ay, ex, ey = ax[keep], ay[keep], ex[keep], ey[keep]
+    phi0 = np.arctan2(ay, ax)
+    dphi = np.arctan2(by[keep], bx[keep]) - phi0
+    dphi = (dphi + math.pi) % _TWO_PI - math.pi  # the arc the segment subtends
+    beam, own, _ = _beam_spans(
+        phi0 + np.minimum(dphi, 0.0), np.abs(dphi), fan.a0_rad, fan.inc_rad, fan.n_beams
+    )
+    dx, dy = fan.directions(beam)
+    qx, qy, sx, sy = ax[own], ay[own], ex[own], ey[own]
+    denom = dx * sy - dy * sx  # d x e
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / denom
+        t = (qx * sy - qy * sx) * inv  # (q x e) / (d x e)
+        u = (qx * dy - qy * dx) * inv  # (q x d) / (d x e)
+    ok = (t > 0.0) & (u >= -1e-9) & (u <= 1.0 + 1e-9)
+    return beam[ok], t[ok], keep[own[ok]]
+
+
+def _circle_hits(fan: _Fan, circles: np.ndarray, id_offset: int) -> _Hits | None:
+    """Intersections of the fan with the circles [x, y, r] (shape index = id_offset + row)."""
+    if not circles.shape[0]:
+        return None
+    ox, oy = fan.origin
+    wx = circles[:, 0] - ox
+    wy = circles[:, 1] - oy
+    r = circles[:, 2]
+    dist = np.hypot(wx, wy)
+    keep = np.flatnonzero((dist > r) & (dist - r <= fan.max_range_m))
+    if not keep.size:
+        return None
+    wx, wy, r, dist = wx[keep], wy[keep], r[keep], dist[keep]
+    half = np.arcsin(r / dist)
+    beam, own, _ = _beam_spans(
+        np.arctan2(wy, wx) - half, 2 * half, fan.a0_rad, fan.inc_rad, fan.n_beams
+    )
+    dx, dy = fan.directions(beam)
+    beta = dx * wx[own] + dy * wy[own]  # d . w
+    disc = beta * beta - (dist[own] ** 2 - r[own] ** 2)
+    ok = disc >= 0.0
+    t = beta[ok] - np.sqrt(disc[ok])
+    ok2 = t > 0.0
+    return beam[ok][ok2], t[ok2], id_offset + keep[own[ok][ok2]]
+
+
+def _nearest_per_beam(
+    n_beams: int, max_range_m: float, hits: list[_Hits]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(ranges, shape index) of each beam's nearest intersection within range (inf, -1: none)."""
     best = np.full(n_beams, np.inf)
     hit = np.full(n_beams, -1, dtype=np.int64)
-    if beams:
-        beam = np.concatenate(beams)
-        t = np.concatenate(ts)
-        ident = np.concatenate(ids)
-        inside = t <= max_range_m
-        beam, t, ident = beam[inside], t[inside], ident[inside]
-        # nearest hit per beam: unbuffered minimum, then the shape that attains it
-        np.minimum.at(best, beam, t)
-        win = t == best[beam]
-        hit[beam[win]] = ident[win]
+    if not hits:
+        return best, hit
+    beam = np.concatenate([h[0] for h in hits])
+    t = np.concatenate([h[1] for h in hits])
+    ident = np.concatenate([h[2] for h in hits])
+    inside = t <= max_range_m
+    beam, t, ident = beam[inside], t[inside], ident[inside]
+    # nearest hit per beam: unbuffered minimum, then the shape that attains it
+    np.minimum.at(best, beam, t)
+    win = t == best[beam]
+    hit[beam[win]] = ident[win]
     return best, hit
 
 
