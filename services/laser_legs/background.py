@@ -48,8 +48,7 @@ import math
 import numpy as np
 
 from followbot.schemas import LaserScan
-
-from .core import beam_geometry, valid_mask
+from followbot.services.common.scan import beam_geometry, valid_mask
 
 __all__ = ["StaticBackground", "match_scans"]
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from followbot.schemas import LaserScan
 
-from .core import horizon
+from .beams import horizon
 from .detectors import DETECTORS, make_detector
 from .scene import make_scan, person_legs
 from .self_filter import RobotBodyFilter

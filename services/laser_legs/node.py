@@ -25,8 +25,10 @@ from followbot.services.runtime.node import Node
 from followbot.services.runtime.service import service_main
 from followbot.services.runtime.settings import NodeSettings, SettingsError, removed
 
-from .core import LegDetector, detector_clip_m, empty_candidates, horizon, scan_reach_m
+from .beams import detector_clip_m, horizon, scan_reach_m
+from .core import LegDetector
 from .detectors import REGISTRY, detector_settings, make_detector
+from .message import empty_candidates
 from .prediction import TargetPredictor
 from .self_filter import SelfFilteredDetector, SelfFilterSettings
 

@@ -29,8 +29,9 @@ import msgspec
 import numpy as np
 
 from followbot.schemas import LaserScan, PersonCandidates
+from followbot.services.common.scan import valid_mask
 
-from .core import LegDetector, Prediction, valid_mask
+from .core import LegDetector, Prediction
 
 __all__ = ["RobotBodyFilter", "SelfFilterSettings", "SelfFilteredDetector", "on_mask"]
 

@@ -12,13 +12,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from followbot.schemas import LaserScan
-from followbot.services.laser_legs.core import (
+from followbot.services.laser_legs.beams import prepare
+from followbot.services.laser_legs.clusters import (
     LegSet,
     cluster_by_jump,
     cluster_min,
     end_width,
     gate,
-    prepare,
 )
 from followbot.services.laser_legs.detectors import ClusterLegDetector, ThesisSettings
 from followbot.services.laser_legs.scene import make_scan, person_legs
@@ -133,7 +133,8 @@ def test_fast_thesis_equals_reference_on_random_ranges(ranges):
 
 
 def _runs(ranges, bridge):
-    from followbot.services.laser_legs.core import NO_RETURN, jump_cuts
+    from followbot.services.laser_legs.beams import NO_RETURN
+    from followbot.services.laser_legs.clusters import jump_cuts
 
     rpp = np.array([NO_RETURN, *[NO_RETURN if r is None else r for r in ranges], NO_RETURN])
     cut = jump_cuts(rpp, 0.06, bridge).tolist()

@@ -1,4 +1,4 @@
-"""``core.horizon``: the nearest return of a scan by bearing bin, what the tracker reads to tell
+"""``beams.horizon``: the nearest return of a scan by bearing bin, what the tracker reads to tell
 a hidden person from one who is gone."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from followbot.schemas import Array, Horizon, LaserScan, PersonCandidates, decode, encode
-from followbot.services.laser_legs.core import horizon
+from followbot.services.laser_legs.beams import horizon
 
 
 def scan(ranges, increment_deg=0.25, angle_min_deg=-135.0, range_max_m=30.0):

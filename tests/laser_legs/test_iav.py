@@ -14,11 +14,8 @@ import numpy as np
 import pytest
 
 from followbot.services.laser_legs import make_detector
-from followbot.services.laser_legs.core import (
-    cluster_by_jump,
-    inscribed_angle_stats,
-    prepare,
-)
+from followbot.services.laser_legs.beams import prepare
+from followbot.services.laser_legs.clusters import cluster_by_jump, inscribed_angle_stats
 from followbot.services.laser_legs.detectors.iav import IAVSettings, noise_aware_iav
 from followbot.services.laser_legs.scene import make_scan
 

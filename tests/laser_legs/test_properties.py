@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from followbot.schemas import LaserScan, PersonCandidates, decode, encode
+from followbot.services.common.scan import valid_mask
 from followbot.services.laser_legs import DETECTORS, make_detector
-from followbot.services.laser_legs.core import valid_mask
 from followbot.services.laser_legs.scene import make_scan, person_legs
 
 NAMES = sorted(DETECTORS)

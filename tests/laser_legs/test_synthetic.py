@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 
 from followbot.schemas import PersonCandidates, decode, encode
 from followbot.services.laser_legs import DETECTORS, make_detector
-from followbot.services.laser_legs.core import Anchor, pair_legs
 from followbot.services.laser_legs.detectors import ClusterLegDetector, ThesisSettings
 from followbot.services.laser_legs.node import LaserLegsSettings
+from followbot.services.laser_legs.pairing import Anchor, pair_legs
 from followbot.services.laser_legs.scene import make_scan, person_legs
 from followbot.services.runtime.settings import SettingsError, load_settings
 

@@ -20,17 +20,11 @@ import msgspec
 
 from followbot.schemas import LaserScan, PersonCandidates
 
-from ..core import (
-    LegSet,
-    Prediction,
-    cluster_by_jump,
-    empty_candidates,
-    end_width,
-    gate,
-    inscribed_angle_stats,
-    paired_candidates,
-    prepare,
-)
+from ..beams import prepare
+from ..clusters import LegSet, cluster_by_jump, end_width, gate, inscribed_angle_stats
+from ..core import Prediction
+from ..message import empty_candidates
+from ..pairing import paired_candidates
 
 __all__ = ["ArcSettings", "InscribedAngleArcDetector"]
 

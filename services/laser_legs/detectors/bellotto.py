@@ -34,8 +34,10 @@ import msgspec
 import numpy as np
 
 from followbot.schemas import Candidate, LaserScan, Leg, PersonCandidates
+from followbot.services.common.scan import valid_mask
 
-from ..core import Prediction, candidates_message, person, valid_mask
+from ..core import Prediction
+from ..message import candidates_message, person
 
 __all__ = ["BellottoSettings", "EdgePatternDetector"]
 

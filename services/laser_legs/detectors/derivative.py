@@ -26,18 +26,11 @@ import numpy as np
 
 from followbot.schemas import LaserScan, PersonCandidates
 
-from ..core import (
-    Beams,
-    Clusters,
-    LegSet,
-    Prediction,
-    candidates_message,
-    end_width,
-    leg_list,
-    pair_legs,
-    person,
-    prepare,
-)
+from ..beams import Beams, prepare
+from ..clusters import Clusters, LegSet, end_width
+from ..core import Prediction
+from ..message import candidates_message, leg_list, person
+from ..pairing import pair_legs
 
 __all__ = ["DerivativeSegmentDetector", "DerivativeSettings"]
 

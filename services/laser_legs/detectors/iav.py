@@ -53,20 +53,10 @@ import numpy as np
 
 from followbot.schemas import LaserScan, PersonCandidates
 
-from ..core import (
-    Beams,
-    Clusters,
-    LegSet,
-    Prediction,
-    candidates_message,
-    cluster_by_jump,
-    empty_candidates,
-    end_width,
-    gate,
-    leg_list,
-    person,
-    prepare,
-)
+from ..beams import Beams, prepare
+from ..clusters import Clusters, LegSet, cluster_by_jump, end_width, gate
+from ..core import Prediction
+from ..message import candidates_message, empty_candidates, leg_list, person
 
 __all__ = ["IAVSettings", "InscribedAngleVarianceDetector", "noise_aware_iav"]
 

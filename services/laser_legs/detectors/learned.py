@@ -66,9 +66,12 @@ import msgspec
 import numpy as np
 
 from followbot.schemas import LaserScan, Leg, PersonCandidates
+from followbot.services.common.scan import beam_geometry, valid_mask
 
 from ..background import StaticBackground
-from ..core import Prediction, beam_geometry, candidates_message, pair_legs, person, valid_mask
+from ..core import Prediction
+from ..message import candidates_message, person
+from ..pairing import pair_legs
 
 __all__ = [
     "FEATURES",

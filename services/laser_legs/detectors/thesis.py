@@ -38,21 +38,14 @@ import msgspec
 import numpy as np
 
 from followbot.schemas import LaserScan, Leg, PersonCandidates
+from followbot.services.common.scan import beam_geometry
 from followbot.services.runtime.settings import removed
 
-from ..core import (
-    NO_RETURN,
-    Anchor,
-    LegSet,
-    Prediction,
-    beam_geometry,
-    bridged,
-    candidates_message,
-    empty_candidates,
-    gate,
-    gate_xy,
-    paired_candidates,
-)
+from ..beams import NO_RETURN
+from ..clusters import LegSet, bridged, gate, gate_xy
+from ..core import Prediction
+from ..message import candidates_message, empty_candidates
+from ..pairing import Anchor, paired_candidates
 
 __all__ = ["ClusterLegDetector", "ThesisSettings"]
 
@@ -143,12 +136,12 @@ class ThesisSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     pair_distance_m: float = 0.500  # thesis 4.3.3: legs closer than 500 mm are one person
     pairing: Literal["closest_first", "matching"] = "matching"
     """thesis 4.3.3 pairs the closest legs first; ``matching`` (beyond the thesis, with
-    pair_first) keeps two people walking side by side or crossing apart (core.pair_legs)."""
+    pair_first) keeps two people walking side by side or crossing apart (pairing.pair_legs)."""
     anchor_weight: float = 1.0
     """Beyond the thesis, with ``pairing: matching`` and ``outside_gate: pair_first``: among
     the groupings of the scan's legs with as many pairs as the matching's, prefer the one with
     a person near the tracked target's prediction -- metres of pair weight (``pair_distance_m
-    - d``) per metre nearer (core.Anchor, core.pair_legs). Where a passer-by walks just in
+    - d``) per metre nearer (pairing.Anchor, pairing.pair_legs). Where a passer-by walks just in
     front of the target, the matching alone pairs the two people's near legs
     (docs/laser_legs.md, "Pairing near the target"). 0: off."""
     anchor_lone_leg_m: float = 0.15
