@@ -1,6 +1,6 @@
 """``followbot benchmark``: the real-data suite, one report over a data folder.
 
-    followbot benchmark                                  # ../shared/data, thesis preset
+    followbot benchmark                                  # ../shared/data, the defaults
     followbot benchmark --all-presets --output out/bench-all
     followbot benchmark --only detectors legs360 --quick
 
@@ -1104,9 +1104,9 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     which = p.add_mutually_exclusive_group()
     which.add_argument(
-        "--preset", default="thesis", metavar="NAME",
-        help=f"the preset the pipeline runs with: {', '.join(preset_names())} (thesis: "
-        "today's defaults)",
+        "--preset", default="followbot", metavar="NAME",
+        help=f"the preset the pipeline runs with: {', '.join(preset_names())} (default: "
+        "followbot, the defaults; thesis: the thesis as published)",
     )  # fmt: skip
     which.add_argument(
         "--all-presets", action="store_true",

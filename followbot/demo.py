@@ -27,7 +27,10 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     p.add_argument("--scenario", default=DEFAULT_SCENARIO, help=f"({DEFAULT_SCENARIO})")
-    p.add_argument("--preset", default="thesis", choices=sorted(PRESETS), help="(thesis)")
+    p.add_argument(
+        "--preset", default="followbot", choices=sorted(PRESETS),
+        help="system preset (default: followbot, the defaults; thesis: the thesis as published)",
+    )  # fmt: skip
     p.add_argument("--output", default="out/demo", help="output folder (out/demo)")
     args = p.parse_args(argv)
     out = Path(args.output)

@@ -24,10 +24,10 @@ import json
 import sys
 from pathlib import Path
 
-DEFAULT_PRESETS = ("thesis",)
+DEFAULT_PRESETS = ("followbot",)
 
 
-def builtin_scenarios(preset: str | None = "thesis") -> list[str]:
+def builtin_scenarios(preset: str | None = "followbot") -> list[str]:
     """The built-in scenarios a run of ``preset`` takes by default: those written for every
     preset and those naming it (a scenario's ``presets``); None: all of them."""
     from followbot.services.sim.scenario import builtin_names, load_builtin
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument(
         "--preset", action="append", choices=sorted(PRESETS),
-        help="system preset (repeatable; default: thesis)",
+        help="system preset (repeatable; default: followbot, the defaults)",
     )  # fmt: skip
     p.add_argument("--output", required=True, metavar="DIR", help="report folder")
     p.add_argument("--seed", type=int, help="random seed (default: each scenario's own)")

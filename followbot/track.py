@@ -78,7 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         "frame_id)",
     )  # fmt: skip
     p.add_argument("--output", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--preset", default="thesis", choices=sorted(PRESETS), help="(thesis)")
+    p.add_argument(
+        "--preset", default="followbot", choices=sorted(PRESETS),
+        help="system preset (default: followbot, the defaults; thesis: the thesis as published)",
+    )  # fmt: skip
     p.add_argument(
         "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
         help="a stage setting, e.g. laser_legs.detector=bellotto (repeatable)",

@@ -75,10 +75,10 @@ def test_quick_writes_one_report_with_every_section_and_its_plots(quick):
     for png in ("detectors.png", "false_people.png", "demo.png", "throughput.png"):
         assert (out / png).stat().st_size > 5_000, png
     assert result["meta"]["quick"] is True
-    assert list(result["meta"]["presets"]) == ["thesis"]
-    assert "carmen/aces-corrected" in result["throughput"]["thesis"]
+    assert list(result["meta"]["presets"]) == ["followbot"]
+    assert "carmen/aces-corrected" in result["throughput"]["followbot"]
     # each stage's settings and log are kept per run, and the tracks a user can look at
-    run = out / "runs" / "thesis" / "legs360"
+    run = out / "runs" / "followbot" / "legs360"
     assert (run / "tracker.log").is_file() and (run / "people.csv").is_file()
     assert "benchmark.md" in p.stdout
 
@@ -97,7 +97,7 @@ def test_every_registered_detector_keeps_its_recall_and_false_candidates(quick):
 
 @pytest.mark.multiprocess
 def test_the_pipeline_publishes_no_more_false_people_than_today(quick):
-    fp = quick[0]["false_people"]["thesis"]
+    fp = quick[0]["false_people"]["followbot"]
     # measured: aces (first 200 scans) 2.24 per scan, 79.5 % of scans; negative_2
     # /rear_scan (first 200) 3.40 per scan, 99.5 % of scans
     aces = fp["logs"]["carmen/aces-corrected"]
@@ -111,7 +111,7 @@ def test_the_pipeline_publishes_no_more_false_people_than_today(quick):
 
 @pytest.mark.multiprocess
 def test_the_legs360_walker_is_tracked_at_least_as_often_as_today(quick):
-    f = quick[0]["legs360"]["thesis"]
+    f = quick[0]["legs360"]["followbot"]
     assert f["labelled_scans"] == 119
     # measured: walker tracked 11.8 %, followed 0 %, 5.75 ghosts per scan
     assert f["walker_tracked"] >= 0.07
@@ -120,7 +120,7 @@ def test_the_legs360_walker_is_tracked_at_least_as_often_as_today(quick):
 
 @pytest.mark.multiprocess
 def test_demo_stationary_churns_no_more_ids_than_today(quick):
-    f = quick[0]["demo"]["thesis"]
+    f = quick[0]["demo"]["followbot"]
     assert f["scans"] == 300 and f["scans_unanswered"] == 0
     # measured: 66.4 new ids per minute; the target tracked 25.7 % of the scans after it
     # was first chosen
@@ -160,10 +160,10 @@ def test_every_section_is_skipped_with_its_reason_when_the_data_is_missing(tmp_p
         assert "skipped" in result[section], section
     why = {s["what"]: s["why"] for s in result["skipped"]}
     assert "is absent" in why["detectors"]
-    assert "no CARMEN log" in why["false_people: thesis: carmen"]
-    assert "legs360.bag is absent" in why["legs360: thesis"]
+    assert "no CARMEN log" in why["false_people: followbot: carmen"]
+    assert "legs360.bag is absent" in why["legs360: followbot"]
     assert "pets09" in why["appearance"]
-    assert "demo_stationary_simple_environment.bag is absent" in why["demo: thesis"]
+    assert "demo_stationary_simple_environment.bag is absent" in why["demo: followbot"]
     assert "## Skipped" in (tmp_path / "out" / "benchmark.md").read_text()
 
 
@@ -176,7 +176,13 @@ def test_all_presets_runs_every_runnable_preset_and_lists_the_refused_one(tmp_pa
     p = benchmark(data, "--all-presets", "--only", "legs360", "--output", tmp_path / "out")
     assert p.returncode == 0, p.stderr
     result = json.loads((tmp_path / "out" / "benchmark.json").read_text())
-    assert list(result["meta"]["presets"]) == ["thesis", "bellotto", "livingston", "ristic"]
+    assert list(result["meta"]["presets"]) == [
+        "followbot",
+        "thesis",
+        "bellotto",
+        "livingston",
+        "ristic",
+    ]
     why = {s["what"]: s["why"] for s in result["skipped"]}
     for preset in result["meta"]["presets"]:  # each tried it; a broken file is no crash
         assert "legs360.bag" in why[f"{preset}: legs360"]

@@ -55,7 +55,10 @@ __all__ = [
 
 #: The seed systems as swappable parts (DESIGN.md "Presets"): service -> settings.
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {
-    "thesis": {  # seed 000
+    # the defaults: the combination that does best on the real recordings (docs/benchmark.md);
+    # what runs when no preset is named
+    "followbot": {},
+    "thesis": {  # seed 000, as published
         "laser_legs": {"detector": "thesis"},
         "vision_verify": {"verifier": "histogram"},
         "tracker": {"estimator": "particle"},
@@ -128,7 +131,11 @@ class Compose(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     laser_mount: dict[str, Any] = {}
     """The laser's pose on the robot ({x_m, y_m, yaw_deg}), given to every service (each
     checks it: services/runtime/mount.py); empty: the laser frame is the base frame."""
-    preset: Literal["thesis", "bellotto", "livingston", "ristic", "zhuang"] | None = None
+    preset: Literal["followbot", "thesis", "bellotto", "livingston", "ristic", "zhuang"] | None = (
+        None
+    )
+    """A system preset (PRESETS): the seed systems by name; none (or ``followbot``): the
+    defaults."""
     zenoh: dict[str, Any] = {}
     hosts: dict[_NAME, HostSpec] = {}
     router: RouterSpec = msgspec.field(default_factory=RouterSpec)
