@@ -809,7 +809,7 @@ class RandomTreesLegDetector:
         seg = segments(
             scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
         )
-        starts, ends = seg.starts, seg.ends
+        starts = seg.starts
         if starts.shape[0] == 0:
             z = np.zeros(0)
             if self.background is not None:  # the background and the tracks see every scan
