@@ -100,7 +100,8 @@ def test_a_sparse_leg_with_dropouts_and_its_hidden_partner_is_a_person():
     scan = make_scan(person_legs(2.0, 0.25), WALL, noise_m=0.0)
     r = scan.ranges_m().copy()
     r[(r < 3.0).nonzero()[0][1::2]] = np.nan
-    geometry = {"angle_min_rad": scan.angle_min_rad, "angle_increment_rad": scan.angle_increment_rad}
+    geometry = {"angle_min_rad": scan.angle_min_rad}
+    geometry["angle_increment_rad"] = scan.angle_increment_rad
     sparse = LaserScan.from_ranges(r, stamp_ns=1, **geometry)
     assert len(segments(sparse, dropout_beams=0).starts) == 0
     assert len(segments(sparse, dropout_beams=3).starts) == 2
