@@ -109,9 +109,10 @@ class ScanData:
     __slots__ = ("counts", "cx", "cy", "features", "legs", "oof", "poses", "scan", "score")
 
     def __init__(self, scan, legs_xy: np.ndarray | None, s: LearnedSettings) -> None:
-        st, en, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
-        inc = abs(float(scan.angle_increment_rad)) or None
-        self.features, self.cx, self.cy = features_and_centroids(st, en, x, y, r, valid, inc)
+        seg = segments(
+            scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
+        )
+        self.features, self.cx, self.cy = features_and_centroids(seg)
         self.legs = legs_xy
         self.scan = scan
         self.score = np.zeros(self.features.shape[0])

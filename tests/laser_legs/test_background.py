@@ -186,7 +186,7 @@ def test_detector_marks_the_post_segment_static_not_the_walker():
     seen_post = 0
     for k in range(40):
         scan = world_scan((0, 0, 0), [POST, *walker(k)], ROOM, k, increment_rad=math.radians(0.25))
-        st, en, x, y, _, _ = segments(scan)
+        st, en, x, y = segments(scan)[:4]
         cx = np.array([x[a : b + 1].mean() for a, b in zip(st, en, strict=True)])
         cy = np.array([y[a : b + 1].mean() for a, b in zip(st, en, strict=True)])
         static = det.static_segments(scan, cx, cy)

@@ -81,8 +81,9 @@ def test_learned_model_is_shipped_and_finds_clean_legs():
 def test_segment_features_are_finite_and_describe_shape():
     plank = [(2.5, 1.0, 2.5, 1.3)]  # 30 cm, flat (segments wider than 0.6 m are dropped)
     scan = make_scan([(1.5, 0.0, R), (2.0, -1.0, 0.02)], plank)
-    st, en, x, y, r, valid = segments(scan)
-    f = segment_features(st, en, x, y, r, valid)
+    seg = segments(scan)
+    st = seg.starts
+    f = segment_features(seg)
     assert f.shape == (len(st), len(FEATURES)) and np.isfinite(f).all()
     col = {name: i for i, name in enumerate(FEATURES)}
     wall = int(np.argmax(f[:, col["width_m"]]))
@@ -98,7 +99,7 @@ def test_segment_features_are_finite_and_describe_shape():
 
 def _reference(scan):
     """Some features computed segment by segment, the obvious way."""
-    st, en, x, y, _, _ = segments(scan)
+    st, en, x, y = segments(scan)[:4]
     rows = []
     for a, b in zip(st.tolist(), en.tolist(), strict=True):
         px, py = x[a : b + 1], y[a : b + 1]
@@ -146,7 +147,7 @@ def test_vectorised_features_equal_a_segment_by_segment_reference(seed):
     posts = [(rng.uniform(1, 5), rng.uniform(-3, 3), rng.uniform(0.01, 0.2)) for _ in range(4)]
     room = [(6, -4, 6, 4), (6, 4, -1, 4), (-1, -4, 6, -4)]
     scan = make_scan([*people, *posts], room, fov_rad=math.radians(270), noise_m=0.005, rng=rng)
-    f = segment_features(*segments(scan), increment_rad=math.radians(0.5))
+    f = segment_features(segments(scan))
     ref = _reference(scan)
     assert len(ref) == f.shape[0] > 5
     col = {name: i for i, name in enumerate(FEATURES)}
@@ -182,7 +183,7 @@ def _scan(ranges, **kw):
 def test_features_are_finite_and_detection_survives_adversarial_scans(ranges):
     scan = _scan(ranges)
     st = segments(scan)[0]
-    f, cx, cy = features_and_centroids(*segments(scan))
+    f, cx, cy = features_and_centroids(segments(scan))
     assert f.shape == (st.shape[0], len(FEATURES)) and np.isfinite(f).all()
     assert np.isfinite(cx).all() and np.isfinite(cy).all()
     result = make_detector("learned").detect(scan)
@@ -194,7 +195,7 @@ def test_infinite_range_max_and_reversed_beams_stay_finite():
     r = np.random.default_rng(2).uniform(0.5, 4.0, 400)
     r[::7] = np.inf
     scan = _scan(r, range_max_m=math.inf, angle_min_rad=math.pi, angle_increment_rad=-0.01)
-    f = segment_features(*segments(scan))
+    f = segment_features(segments(scan))
     assert np.isfinite(f).all()
 
 
@@ -219,7 +220,7 @@ def test_learned_settings_are_checked():
 def test_vote_share_counts_the_trees_voting_leg():
     model = load_model(default_model_path())
     scan = make_scan(person_legs(2.0, 0.0, leg_radius_m=R), WALL, fov_rad=math.radians(180))
-    f = segment_features(*segments(scan))
+    f = segment_features(segments(scan))
     votes = model.getVotes(f, 0)
     labels, counts = votes[0], votes[1:].astype(float)
     want = counts[:, labels == 1].sum(axis=1) / counts.sum(axis=1)

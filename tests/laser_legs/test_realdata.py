@@ -65,11 +65,12 @@ def test_learned_figures_held_out():
     assert sc.recall > 0.95
     assert sc.false_candidates_per_scan < 1.1
     # the detector alone (static background and temporal confirmation, all chosen by
-    # cross-validation), without the body filter: measured 0.972 at 1.78 (before: 0.983
-    # at 2.12), most of the difference pieces of the rear and right lasers' robot body
+    # cross-validation), without the body filter: measured 0.985 at 0.49 since segments cut by
+    # the edge of the view are left out (issue 35; before: 0.972 at 1.78, most of the
+    # difference pieces of the rear and right lasers' robot body at the ends of their view)
     sc = score(make_detector("learned"), pos, neg)
     assert sc.recall > 0.95
-    assert 1.4 < sc.false_candidates_per_scan < 2.2
+    assert sc.false_candidates_per_scan < 0.7
     # without the tracks, at the thresholds chosen without them: measured 0.930 at 1.23
     sc = score(make_detector(*VARIANTS["learned_notrack"]), pos, neg)
     assert sc.recall > 0.90

@@ -78,8 +78,10 @@ __all__ = [
     "LearnedSettings",
     "LegTracks",
     "RandomTreesLegDetector",
+    "Segments",
     "default_model_path",
     "features_and_centroids",
+    "full_circle",
     "segment_features",
     "segments",
 ]
@@ -155,6 +157,16 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """Segments of fewer points are not classified (at least 3: the features need them)."""
     max_width_m: float = 0.6
     """Segments wider end to end than this (m) are not classified (two legs together fit)."""
+    max_range_m: float | None = 8.0
+    """Returns beyond this range (m) are not classified (they still cut segments and count as
+    background behind a segment); None: up to the scanner's range_max_m. Not in the seeds (the
+    thesis clips at 3.5 m; issue 35: a person is found out to 8 m)."""
+    dropout_beams: int = 3
+    """Up to this many consecutive beams without return (NaN, inf, 0, out of the sensor's
+    limits) between two points closer than ``cluster_gap_m`` do not cut a segment: a sparse leg
+    seen with dropouts stays one segment (issue 35; 0: every such beam cuts). Segments touching
+    the first or last beam (within this many beams) of a scan that is not a full circle are
+    cut by the edge of the view and never classified; on a full circle the two ends join."""
     pair_distance_m: float = 0.500  # thesis 4.3.3
     gate_m: float = 0.400  # thesis 4.3.2 criterion 3, when a prediction is given
     # static background (background.py; not in the seeds): a segment seen occupied in at least
@@ -196,65 +208,131 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             raise ValueError("background_hit_m must be > 0")
         if self.min_points < 3:
             raise ValueError("min_points must be >= 3")
+        if self.dropout_beams < 0:
+            raise ValueError("dropout_beams must be >= 0")
+        if self.max_range_m is not None and not self.max_range_m > 0:
+            raise ValueError("max_range_m must be > 0 (or None: the scanner's range)")
         for name in ("cluster_gap_m", "max_width_m", "gate_m", "pair_distance_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
 
 
-def segments(
-    scan: LaserScan, cluster_gap_m: float = 0.13, min_points: int = 3, max_width_m: float = 0.6
-):
-    """Segments of one scan: ``(starts, ends, x, y, r, valid)``, inclusive beam spans.
+class Segments(NamedTuple):
+    """Segments of one scan over its *points* (the returns used, in beam order; on a full
+    circle rotated so that no segment wraps inside the arrays).
 
-    ``x``, ``y``, ``r`` are per beam (0 where a beam has no return), ``valid`` marks returns.
+    ``starts``/``ends`` are inclusive point indices; ``x``, ``y``, ``r`` and ``beam`` (the beam
+    index) are per point; ``outer`` (2, k) is the range of the beam just before each segment's
+    first beam and just after its last (+inf where that beam has no return or lies off the
+    scan)."""
+
+    starts: np.ndarray
+    ends: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    r: np.ndarray
+    outer: np.ndarray
+    beam: np.ndarray
+
+
+def _no_segments() -> Segments:
+    z, e = np.zeros(0), np.zeros(0, dtype=np.intp)
+    return Segments(e, e, z, z, z, np.zeros((2, 0)), e)
+
+
+def full_circle(n: int, increment_rad: float) -> bool:
+    """True when ``n`` beams of ``increment_rad`` cover 360 deg: the last beam and the first are
+    neighbours."""
+    return n > 2 and abs(abs(increment_rad) * n - 2.0 * math.pi) < 0.5 * abs(increment_rad)
+
+
+def segments(
+    scan: LaserScan,
+    cluster_gap_m: float = 0.13,
+    min_points: int = 3,
+    max_width_m: float = 0.6,
+    max_range_m: float | None = None,
+    dropout_beams: int = 0,
+) -> Segments:
+    """Segments of one scan: runs of returns whose neighbouring points are closer than
+    ``cluster_gap_m``.
+
+    * returns beyond ``max_range_m`` are not points; they cut (something far was seen there);
+    * up to ``dropout_beams`` consecutive beams without return (NaN, inf, 0, out of the
+      sensor's limits) between two points closer than ``cluster_gap_m`` do not cut: a sparse
+      leg seen with dropouts stays one segment;
+    * a segment touching the first or last beam of a scan that is not a full circle is cut by
+      the edge of the view (a wall end, or half a leg) and left out; on a full circle the last
+      beam and the first are neighbours and a segment may run across them.
     """
     raw = scan.ranges_m()
     n = raw.shape[0]
-    valid = valid_mask(raw, scan.range_min_m, scan.range_max_m) & np.isfinite(raw)
-    _, cos, sin = beam_geometry(float(scan.angle_min_rad), float(scan.angle_increment_rad), n)
-    r = np.where(valid, raw, 0.0)
-    x = r * cos[:n]
-    y = r * sin[:n]
-    dx = x[1:] - x[:-1]
-    dy = y[1:] - y[:-1]
-    # a cut before beam k when beam k or k-1 has no return or their points are far apart
-    cut = np.ones(n + 1, dtype=bool)
-    cut[1:n] = (dx * dx + dy * dy >= cluster_gap_m * cluster_gap_m) | ~(valid[1:] & valid[:-1])
-    bounds = cut.nonzero()[0]
-    starts, ends = bounds[:-1], bounds[1:] - 1
-    keep = valid[starts] & (ends - starts + 1 >= min_points)
+    ret = valid_mask(raw, scan.range_min_m, scan.range_max_m) & np.isfinite(raw)
+    use = ret if max_range_m is None else ret & (raw <= max_range_m)
+    beam = use.nonzero()[0]
+    m = beam.shape[0]
+    if m < min_points:
+        return _no_segments()
+    inc = float(scan.angle_increment_rad)
+    _, cos, sin = beam_geometry(float(scan.angle_min_rad), inc, n)
+    r = raw[beam].astype(np.float64)
+    x = r * cos[beam]
+    y = r * sin[beam]
+    circle = full_circle(n, inc)
+    # join[i]: point i and the next one (cyclic) lie in one segment
+    nxt = np.arange(1, m + 1)
+    nxt[-1] = 0
+    gap = beam[nxt] - beam
+    gap[-1] += n
+    dx = x[nxt] - x
+    dy = y[nxt] - y
+    join = (dx * dx + dy * dy < cluster_gap_m * cluster_gap_m) & (gap <= dropout_beams + 1)
+    if dropout_beams and max_range_m is not None:
+        far = np.zeros(n + 1, dtype=np.int32)  # returns beyond max_range_m before each beam
+        np.cumsum(ret & ~use, out=far[1:])
+        between = far[beam[nxt]] - far[beam + 1]  # over the beams between a point and the next
+        between[-1] += far[n]  # the last point's next is the first (across the scan's end)
+        join &= between == 0
+    if not circle:
+        join[-1] = False
+    elif join.all():  # one closed ring round the laser: a wall
+        return _no_segments()
+    else:  # rotate so that the arrays start just after a cut
+        shift = int((~join).nonzero()[0][0]) + 1
+        if shift < m:
+            beam, x, y, r, join = (np.roll(a, -shift) for a in (beam, x, y, r, join))
+    cut = (~join).nonzero()[0]  # the last point of each segment
+    ends = cut
+    starts = np.empty_like(cut)
+    starts[0] = 0
+    starts[1:] = cut[:-1] + 1
+    keep = ends - starts + 1 >= min_points
+    if not circle:  # cut by the edge of the view
+        keep &= (beam[starts] > dropout_beams) & (beam[ends] < n - 1 - dropout_beams)
     starts, ends = starts[keep], ends[keep]
     keep = np.hypot(x[ends] - x[starts], y[ends] - y[starts]) <= max_width_m
-    return starts[keep], ends[keep], x, y, r, valid
+    starts, ends = starts[keep], ends[keep]
+    around = np.array([beam[starts] - 1, beam[ends] + 1])
+    if circle:
+        around %= n
+    outside = (around < 0) | (around >= n)
+    around = np.clip(around, 0, n - 1)
+    outer = np.where(ret[around] & ~outside, raw[around], np.inf)
+    return Segments(starts, ends, x, y, r, outer, beam)
 
 
-def segment_features(
-    starts, ends, x, y, r, valid, increment_rad: float | None = None
-) -> np.ndarray:
-    """(k, len(FEATURES)) float32 features of the segments (see the module docstring).
-
-    ``increment_rad`` is the beam spacing (for ``obliqueness``); by default it is taken from
-    the bearings of the first two beams.
-    """
-    f, _, _ = features_and_centroids(starts, ends, x, y, r, valid, increment_rad)
-    return f
+def segment_features(seg: Segments) -> np.ndarray:
+    """(k, len(FEATURES)) float32 features of the segments (see the module docstring)."""
+    return features_and_centroids(seg)[0]
 
 
-def _increment(x: np.ndarray, y: np.ndarray, r: np.ndarray, valid: np.ndarray) -> float:
-    ok = np.flatnonzero(valid[:-1] & valid[1:])
-    if ok.size == 0:
-        return math.radians(0.5)
-    i = int(ok[0])
-    return abs(math.atan2(y[i + 1], x[i + 1]) - math.atan2(y[i], x[i])) or math.radians(0.5)
-
-
-def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
+def features_and_centroids(seg: Segments):
     """Features and centroids (cx, cy) of the segments."""
+    starts, ends, x, y, r = seg.starts, seg.ends, seg.x, seg.y, seg.r
     k = int(starts.shape[0])
     if k == 0:
         z = np.zeros(0)
         return np.zeros((0, len(FEATURES)), dtype=np.float32), z, z
-    inc = _increment(x, y, r, valid) if increment_rad is None else abs(increment_rad)
     p = _gather(starts, ends, x, y)
     m = _moments(p)
     line_res, axis_ratio = _line_fit(m)
@@ -263,8 +341,12 @@ def features_and_centroids(starts, ends, x, y, r, valid, increment_rad=None):
     width, ia_mean, ia_std = _chord_and_angles(p, x, y, starts, ends)
     depth, depth_max = _chord_depth(p, x, y, starts, ends, width)
     rng = np.hypot(m.cx, m.cy)
-    obliq = np.minimum(width / np.maximum((p.fc - 1.0) * inc * rng, 1e-6), OBLIQUENESS_CAP)
-    step_min, step_max = _background_steps(r, valid, starts, ends)
+    ax, ay, ex, ey = x[starts], y[starts], x[ends], y[ends]
+    # the arc the beams sweep at that range: the angle between the end points' bearings
+    # ((points - 1) x the beam spacing on a run without dropouts)
+    sweep = np.abs(np.arctan2(ax * ey - ay * ex, ax * ex + ay * ey))
+    obliq = np.minimum(width / np.maximum(sweep * rng, 1e-6), OBLIQUENESS_CAP)
+    step_min, step_max = _background_steps(r, seg.outer, starts, ends)
     cols = [p.fc, width, rng, np.sqrt(m.tr), m.mean_spread, line_res, axis_ratio, radius, circ_res]
     cols += [blen, breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
     partner_shape = np.array([circ_res, line_res, radius, depth, step_max, rng])
@@ -414,14 +496,10 @@ def _chord_depth(p: _Points, x, y, starts, ends, width) -> tuple[np.ndarray, np.
     return np.bincount(cid, dep, p.k) / p.fc, np.maximum.reduceat(dep, p.first)
 
 
-def _background_steps(r, valid, starts, ends) -> tuple[np.ndarray, np.ndarray]:
-    """(smaller, larger) range step from each segment's end beams to the beams just outside
-    it, capped at STEP_CAP_M (no return or outside the scan: far)."""
-    n = r.shape[0]
-    rp = np.full(n + 2, np.inf)
-    np.copyto(rp[1:-1], r, where=valid)
-    # row 0: the beam before the first, row 1: the beam after the last (padded indices)
-    steps = rp[np.array([starts, ends + 2])] - r[np.array([starts, ends])]
+def _background_steps(r, outer, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    """(smaller, larger) range step from each segment's end points to the beams just outside
+    it (``outer``), capped at STEP_CAP_M (no return or outside the scan: far)."""
+    steps = outer - r[np.array([starts, ends])]
     np.maximum(steps, -STEP_CAP_M, out=steps)
     np.minimum(steps, STEP_CAP_M, out=steps)
     return steps.min(axis=0), steps.max(axis=0)
@@ -728,7 +806,10 @@ class RandomTreesLegDetector:
 
     def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
         s = self.settings
-        starts, ends, x, y, r, valid = segments(scan, s.cluster_gap_m, s.min_points, s.max_width_m)
+        seg = segments(
+            scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
+        )
+        starts = seg.starts
         if starts.shape[0] == 0:
             z = np.zeros(0)
             if self.background is not None:  # the background and the tracks see every scan
@@ -736,8 +817,7 @@ class RandomTreesLegDetector:
             if self.tracks is not None:
                 self.tracks.update(scan, z, z, z, self._pose())
             return candidates_message(scan, self.name, [])
-        inc = abs(float(scan.angle_increment_rad)) or math.radians(0.5)
-        feats, cx, cy = features_and_centroids(starts, ends, x, y, r, valid, inc)
+        feats, cx, cy = features_and_centroids(seg)
         score = self.leg_scores(feats)
         if self.background is not None:
             score = score - s.background_penalty * self.static_segments(scan, cx, cy)
@@ -753,14 +833,15 @@ class RandomTreesLegDetector:
             return candidates_message(scan, self.name, [])
         width = feats[:, 1].tolist()
         conf = score.tolist()
+        first, last = _beam_spans(seg, scan.ranges.shape[0])
         out = []
         for g in groups:
             legs = [
                 Leg(
                     x_m=float(cx[i]),
                     y_m=float(cy[i]),
-                    first_beam=int(starts[i]),
-                    last_beam=int(ends[i]),
+                    first_beam=first[i],
+                    last_beam=last[i],
                     width_m=width[i],
                 )
                 for i in g
@@ -768,6 +849,17 @@ class RandomTreesLegDetector:
             pattern = "two_legs" if len(g) == 2 else "one_leg"
             out.append(person(legs, pattern, min(1.0, max(0.0, *(conf[i] for i in g)))))
         return candidates_message(scan, self.name, out)
+
+
+def _beam_spans(seg: Segments, n: int) -> tuple[list[int], list[int]]:
+    """(first, last) beam of each segment for its Leg. A segment across the end of a full
+    circle's scan (its first beam after its last) gets the part on the side of the scan's end
+    where more of its beams lie (a Leg's span cannot wrap)."""
+    first, last = seg.beam[seg.starts].tolist(), seg.beam[seg.ends].tolist()
+    for i, (a, b) in enumerate(zip(first, last, strict=True)):
+        if a > b:
+            first[i], last[i] = (a, n - 1) if n - a > b + 1 else (0, b)
+    return first, last
 
 
 # --------------------------------------------------------------------------- model file
