@@ -188,9 +188,9 @@ def sensor_mounts(spec) -> dict[str, Any]:
 def camera_only_settings(spec, settings: dict[str, dict[str, Any]]) -> None:
     """Seed 001's stages on scenario ``spec``: its camera (height, field of view, size, rate)
     for camera_blobs, the hybrid filter and the rule; the colour learnt from a rectangle on the
-    target's trousers in the first frame (what the seed's user drags with the mouse, placed
-    from where the scenario starts the target); the sim's lock-step awaits camera_blobs'
-    candidates instead of laser_legs'."""
+    target's trousers in the first frame (``learn_rect: trousers``, placed by
+    :func:`place_learn_rect` once the overrides are in); the sim's lock-step awaits
+    camera_blobs' candidates instead of laser_legs'."""
     c = spec.camera
     if (c.mount_y_m, c.mount_yaw_deg) != (0.0, 0.0):
         raise RunError(f"{spec.name}: seed 001's camera looks straight ahead from the centre line")
@@ -202,7 +202,7 @@ def camera_only_settings(spec, settings: dict[str, dict[str, Any]]) -> None:
     blobs.setdefault("camera", cam)
     blobs.setdefault("image_period_s", 1.0 / c.rate_hz)
     if "colour" not in blobs:
-        blobs.setdefault("learn_rect", learn_rect(spec))
+        blobs.setdefault("learn_rect", "trousers")
     settings["tracker"].setdefault("estimator_settings", {}).setdefault("camera", cam)
     zh = settings["controller"].setdefault("zhuang", {})
     zh.setdefault("hfov_deg", c.hfov_deg)
@@ -217,10 +217,47 @@ def camera_only_settings(spec, settings: dict[str, dict[str, Any]]) -> None:
         }
 
 
-def learn_rect(spec) -> list[float]:
-    """[x0, y0, w, h]: a rectangle on the scenario's target's trousers, 0.3-0.5 m above the
-    floor (where the two legs meet, so no background between them), as the camera sees it at
-    the start."""
+LEARN_PARTS = ("trousers", "shirt")
+
+
+def place_learn_rect(spec, settings: dict[str, dict[str, Any]]) -> None:
+    """camera_blobs' ``learn_rect`` given as a part of the target's clothing (``trousers``,
+    the default, or ``shirt``: ``followbot eval --set camera_blobs.learn_rect=shirt``) into
+    pixels of the first frame (:func:`learn_rect`). On the shirt the regions are the shirt's,
+    whose bottom edge is its hem: their floor points are read on the hem's plane (camera_blobs'
+    and the hybrid estimator's ``region_bottom_m``, unless set)."""
+    blobs = settings.get("camera_blobs", {})
+    part = blobs.get("learn_rect")
+    if not isinstance(part, str):
+        return
+    if part not in LEARN_PARTS:
+        raise RunError(f"camera_blobs.learn_rect: {part!r} is not a rectangle nor one of "
+                       f"{', '.join(LEARN_PARTS)}")  # fmt: skip
+    blobs["learn_rect"] = learn_rect(spec, part)
+    if part == "shirt":
+        hem = round(shirt_hem_m(spec), 3)
+        blobs.setdefault("region_bottom_m", hem)
+        hybrid = settings["tracker"].setdefault("estimator_settings", {})
+        hybrid.setdefault("region_bottom_m", blobs["region_bottom_m"])
+
+
+def _target(spec):
+    target = next((p for p in spec.people if p.is_target), None)
+    if target is None:
+        raise RunError(f"{spec.name}: no target to learn a colour from (seed 001)")
+    return target
+
+
+def shirt_hem_m(spec) -> float:
+    """Height of the target's shirt hem: the simulator draws the shirt down to 5 cm below the
+    hips, at 0.52 of the person's height (services/sim/camera.py)."""
+    return 0.52 * _target(spec).appearance.height_m - 0.05
+
+
+def learn_rect(spec, part: str = "trousers") -> list[float]:
+    """[x0, y0, w, h]: a rectangle on the scenario's target as the camera sees it at the
+    start, 0.12 m wide: on the trousers 0.3-0.5 m above the floor (where the two legs meet, so
+    no background between them), or on the shirt from 0.1 m above its hem to 0.2 m higher."""
     from followbot.services.runtime.ground_plane import GroundCamera
 
     c = spec.camera
@@ -228,16 +265,15 @@ def learn_rect(spec) -> list[float]:
         width=c.width, height=c.height, hfov_deg=c.hfov_deg, height_m=c.height_m,
         mount_x_m=c.mount_x_m,
     )  # fmt: skip
-    target = next((p for p in spec.people if p.is_target), None)
-    if target is None:
-        raise RunError(f"{spec.name}: no target to learn a colour from (seed 001)")
+    target = _target(spec)
     yaw = math.radians(spec.robot.yaw_deg)
     dx, dy = target.start[0] - spec.robot.start[0], target.start[1] - spec.robot.start[1]
     x, y = math.cos(yaw) * dx + math.sin(yaw) * dy, -math.sin(yaw) * dx + math.cos(yaw) * dy
     u, v = cam.floor_to_pixel(x, y)
     d = math.hypot(x - c.mount_x_m, y)
     f = cam.focal_px
-    rect = [float(u) - f * 0.06 / d, float(v) - f * 0.5 / d, f * 0.12 / d, f * 0.2 / d]
+    bottom = 0.3 if part == "trousers" else shirt_hem_m(spec) + 0.1
+    rect = [float(u) - f * 0.06 / d, float(v) - f * (bottom + 0.2) / d, f * 0.12 / d, f * 0.2 / d]
     if not (math.isfinite(rect[0]) and rect[0] >= 0 and rect[0] + rect[2] <= c.width):
         raise RunError(f"{spec.name}: the target does not start in the camera's view (seed 001)")
     return [round(v_, 1) for v_ in rect]
@@ -315,6 +351,7 @@ def run_scenario(
         mount = {"offset_x_m": cam.mount_x_m, "offset_y_m": cam.mount_y_m}
         settings["vision_verify"]["cameras"] = {"default": {**mount, "yaw_deg": cam.mount_yaw_deg}}
     apply_stage_overrides(settings, overrides or [])
+    place_learn_rect(spec, settings)
     common = {
         "robot": robot,
         "zenoh": {"connect": [endpoint]},

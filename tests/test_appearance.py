@@ -180,7 +180,7 @@ def test_verifier_settings_and_frames_are_applied(clip, capsys):
 def test_an_unknown_verifier_or_setting_is_named(clip, capsys):
     video, boxes = clip
     assert main([str(video), str(boxes), "--verifier", "nope"]) == 2
-    assert "unknown verifier 'nope'; valid names: face, histogram, meanshift" in (
+    assert "unknown verifier 'nope'; valid names: colour, face, histogram, meanshift" in (
         capsys.readouterr().err
     )
     assert main([str(video), str(boxes), "--set", "colour_wieght=1"]) == 2

@@ -49,3 +49,24 @@ def test_the_robot_turned_to_keep_the_person_near_the_image_centre(tmp_path):
     assert np.abs(b[t > 10.0]).max() < 10.0  # turned to the person, who stopped at 9 s
     turns = [r.cmd.angular_radps for r in run.records if r.cmd is not None]
     assert max(turns) > 0.05  # it turned left, toward the person walking to the left
+
+
+def test_the_learning_rectangle_goes_on_the_named_clothing():
+    """``--set camera_blobs.learn_rect=shirt``: the rectangle on the shirt, and the regions'
+    floor points read on its hem's plane by the camera stage and the hybrid filter alike."""
+    import pytest
+
+    from followbot.runner import RunError, place_learn_rect
+    from followbot.services.sim.scenario import load_builtin
+
+    spec = load_builtin("thesis_5_2_4_two_people")  # a 1 m camera, the target 1.6 m ahead
+    trousers = {"camera_blobs": {"learn_rect": "trousers"}, "tracker": {}}
+    shirt = {"camera_blobs": {"learn_rect": "shirt"}, "tracker": {}}
+    place_learn_rect(spec, trousers)
+    place_learn_rect(spec, shirt)
+    assert trousers["camera_blobs"]["learn_rect"][1] > 200  # legs: the image's bottom rows
+    assert shirt["camera_blobs"]["learn_rect"][1] < 120  # the shirt: above the centre row
+    hem = shirt["camera_blobs"]["region_bottom_m"]
+    assert 0.8 < hem < 0.9 and shirt["tracker"]["estimator_settings"]["region_bottom_m"] == hem
+    with pytest.raises(RunError, match="hat"):
+        place_learn_rect(spec, {"camera_blobs": {"learn_rect": "hat"}, "tracker": {}})

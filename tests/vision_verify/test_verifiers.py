@@ -22,7 +22,7 @@ from followbot.services.vision_verify.verifiers import REGISTRY, make_verifier
 
 from .helpers import HOW, acquired_scene, opencv_sample, owner
 
-NAMES = ["face", "histogram", "meanshift", "online"]
+NAMES = ["colour", "face", "histogram", "meanshift", "online"]
 
 
 def test_the_three_verifiers_are_registered():

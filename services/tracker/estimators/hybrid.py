@@ -104,6 +104,8 @@ class HybridFilter:
         s = self.settings = settings or HybridSettings()
         self.rng = rng
         self.scale = s.camera.width / _REF_WIDTH
+        # a region's bottom edge stands on the plane region_bottom_m above the floor
+        self.camera = s.camera.above_floor(s.region_bottom_m)
         x, y, w, h = (float(v) for v in region)
         self.particles = np.zeros((s.particles, 4))
         self.particles[:, 0], self.particles[:, 1] = x, y
@@ -139,7 +141,7 @@ class HybridFilter:
         """(2,) the base-frame floor point under the estimate (its rectangle's bottom centre);
         NaN when that is at or above the horizon."""
         x, y = self.position[:2]
-        fx, fy = self.settings.camera.pixel_to_floor(x, y + self.size[1] / 2.0, pan_rad)
+        fx, fy = self.camera.pixel_to_floor(x, y + self.size[1] / 2.0, pan_rad)
         return np.array([float(fx), float(fy)])
 
     # ------------------------------------------------------------------ the step
@@ -157,7 +159,7 @@ class HybridFilter:
     def ego_motion(self, rotation: np.ndarray, translation: np.ndarray) -> None:
         """Seed 4, figure 3: carry every particle's foot point through the floor into the image
         plane after the robot moved by p1 = rotation @ p0 + translation (base frames)."""
-        cam = self.settings.camera
+        cam = self.camera
         h = self.size[1]
         x, y = self.particles[:, 0], self.particles[:, 1] + h / 2.0
         fx, fy = cam.pixel_to_floor(x, y)
@@ -361,7 +363,8 @@ class HybridEstimator(EstimatorBase):
             d = self.distance(np.array([[c.x_m, c.y_m] for c in seen]))
             i = int(np.argmin(d))
             if d[i] <= self.gate():
-                s = msgspec.structs.replace(self.settings, camera=self._camera)
+                # the filter reads pixels on the regions' plane: this camera already does
+                s = msgspec.structs.replace(self.settings, camera=self._camera, region_bottom_m=0.0)
                 self.filter = HybridFilter(self._regions[i], s, self.rng)
                 self._refresh()
 
