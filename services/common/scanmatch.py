@@ -58,12 +58,21 @@ class ScanFrame:
     """One scan's points in its own frame, with per-beam surface normals (for matching).
 
     ``surf`` is (4, n + 2w): x, y, normal x, normal y, padded with ``w = MATCH_WINDOW`` beams
-    on both sides; beams without a usable normal (and the pads) sit at ``_FAR``.
+    on both sides; beams without a usable normal (and the pads) sit at ``_FAR``. A beam has a
+    normal when both neighbours have returns at most ``max_chord_m`` apart (a sparse scanner's
+    distant walls need more than the default).
     """
 
     __slots__ = ("n_normals", "ok", "r", "surf", "x", "y")
 
-    def __init__(self, r: np.ndarray, ok: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> None:
+    def __init__(
+        self,
+        r: np.ndarray,
+        ok: np.ndarray,
+        cos: np.ndarray,
+        sin: np.ndarray,
+        max_chord_m: float = 0.2,
+    ) -> None:
         self.r = np.where(ok, r, np.nan)
         self.ok = ok
         self.x = x = np.where(ok, r * cos, 0.0)
@@ -73,11 +82,12 @@ class ScanFrame:
         surf = np.full((4, n + 2 * w), _FAR)
         surf[2:] = 0.0
         if n >= 3:
-            # normal from the neighbours on both sides (a locally smooth surface only)
+            # normal from the neighbours on both sides, at most max_chord_m apart (a locally
+            # smooth surface only)
             tx = x[2:] - x[:-2]
             ty = y[2:] - y[:-2]
             t2 = tx * tx + ty * ty
-            good = ok[2:] & ok[:-2] & ok[1:-1] & (t2 > 1e-8) & (t2 < 0.04)
+            good = ok[2:] & ok[:-2] & ok[1:-1] & (t2 > 1e-8) & (t2 < max_chord_m * max_chord_m)
             norm = np.sqrt(np.where(good, t2, 1.0))
             sl = slice(w + 1, w + n - 1)
             surf[0, sl] = np.where(good, x[1:-1], _FAR)
