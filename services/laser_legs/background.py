@@ -46,6 +46,7 @@ from followbot.services.common.scanmatch import ScanFrame, beam_index, compose, 
 
 __all__ = ["StaticBackground", "match_scans"]
 
+
 class StaticBackground:
     """Recent scans of one stream; counts hits and views of query points (module docstring).
 
