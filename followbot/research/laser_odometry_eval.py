@@ -13,7 +13,8 @@ The service's own core (:class:`ScanOdometry`) in process, no Zenoh, on:
 - negative_2 (moving, no ground truth): how still the world looks. Each scan's returns are put
   in the odometry frame; their distance to the nearest return of the scan ``LAG_S`` earlier
   (also in that frame), median, with the poses and without (every pose at zero: the world
-  seems to move with the robot).
+  seems to move with the robot); and how far the three lasers' headings part (they sit on
+  one robot, so they differ by a constant).
 """
 
 from __future__ import annotations
@@ -183,9 +184,11 @@ def world_spread(scans, poses, lag: int) -> float:
 
 def moving(data: Path, settings) -> None:
     print(f"\nnegative_2: returns' distance to the nearest return {LAG_S:g} s earlier (median)")
+    yaws = {}
     for topic in ("/left_scan", "/rear_scan", "/right_scan"):
         scans = bag_scans(data / "leg_tracker/negative_2.bag", topic)
         poses, counts = run_poses(scans, settings)
+        yaws[topic] = (np.array([s.stamp_ns for s in scans]) / 1e9, np.unwrap(poses[:, 2]))
         dt = np.median(np.diff([s.stamp_ns for s in scans])) / 1e9
         lag = max(1, round(LAG_S / dt))
         with_odo = world_spread(scans, poses, lag)
@@ -196,6 +199,13 @@ def moving(data: Path, settings) -> None:
               f"without {without * 100:.1f} cm; path {path:.1f} m, turned {turn:.0f} deg; "
               f"failed {counts['failed']}, refused {counts['refused']}, recovered "
               f"{counts['recovered']}")  # fmt: skip
+    # the three lasers sit on one robot: their headings differ by a constant, the mounts'
+    t, _ = yaws["/left_scan"]
+    for a, b in (("/left_scan", "/right_scan"), ("/left_scan", "/rear_scan"),
+                 ("/rear_scan", "/right_scan")):  # fmt: skip
+        d = np.degrees(np.interp(t, *yaws[a]) - np.interp(t, *yaws[b]))
+        d -= d[0]
+        print(f"  heading {a} - {b}: end {d[-1]:+.2f} deg, most {np.abs(d).max():.2f} deg")
 
 
 def main(argv: list[str] | None = None) -> int:
