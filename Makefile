@@ -31,6 +31,7 @@ format: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/followbot bench $(ARGS)
 	$(BIN)/python -m followbot.services.laser_legs.bench
+	$(BIN)/python -m followbot.services.laser_odometry.bench
 	$(BIN)/python -m followbot.services.tracker.bench
 	$(BIN)/python -m followbot.services.controller.bench
 	$(BIN)/python -m followbot.services.vision_verify.bench

@@ -52,7 +52,10 @@ Sections (``--only`` picks some):
 
 Every pipeline run also gives its throughput (throughput section): scans per second from the
 first scan sent to the last answered (reading the file included, start-up not), and the
-recording's own duration over that time (x real time). Lock-step runs are deterministic, so
+recording's own duration over that time (x real time). A recording without odometry (the
+leg_tracker bags, legs360) runs with the laser_odometry stage first, which estimates it from
+the scans (``--laser-odometry auto``; ``off`` runs them without odometry, ``on`` replaces
+the CARMEN logs' odometry too). Lock-step runs are deterministic, so
 every figure but the throughput repeats exactly on the same code and data.
 
 ``--quick`` runs a small slice (positive_6; the first 100 scans of each held-out negative_2
@@ -187,6 +190,8 @@ class LogRun:
     """Records of the file not read, by reason."""
     laser_mount: str = ""
     """The laser's mount pose the stages were given, and where it came from."""
+    odometry: str = ""
+    """Where the tracker's odometry came from: recording, laser_odometry or none."""
 
     @property
     def span_s(self) -> float:
@@ -202,6 +207,7 @@ class LogRun:
             "x_real_time": _r(self.span_s / self.seconds if self.seconds > 0 else None, 1),
             "stage_timeouts": self.timeouts,
             "laser_mount": self.laser_mount,
+            "odometry": self.odometry,
         }
 
 
@@ -214,9 +220,11 @@ def track_log(
     label: str,
     scan_topic: str | None = None,
     max_scans: int | None = None,
+    laser_odometry: str = "auto",
 ) -> LogRun:
     """``path`` through laser_legs and tracker with ``preset``, as ``followbot track`` runs it
-    (its default scan source and odometry, or ``scan_topic`` alone); stage logs in ``out``."""
+    (its default scan source and odometry, or ``scan_topic`` alone; laser_odometry first as
+    ``--laser-odometry`` says); stage logs in ``out``."""
     from followbot.bags import RecordingError, open_recording
     from followbot.track import (
         PipelineError,
@@ -224,6 +232,7 @@ def track_log(
         open_with_defaults,
         run_pipeline,
         tracking_settings,
+        use_laser_odometry,
         write_csv,
     )
 
@@ -236,9 +245,15 @@ def track_log(
     except (RecordingError, ValueError) as exc:
         raise BenchmarkError(str(exc)) from None
     odometry = "sensors/odom" in rec.mapping.values()
-    settings = tracking_settings(preset, STAGES, False, overrides, odometry=odometry)
+    laser = use_laser_odometry(laser_odometry, odometry)
+    if laser:
+        rec.mapping = {s: d for s, d in rec.mapping.items() if d != "sensors/odom"}
+    settings = tracking_settings(
+        preset, STAGES, False, overrides, odometry=odometry, laser_odometry=laser
+    )
     if isinstance(settings, str):
         raise BenchmarkError(settings)
+    stages = (["laser_odometry"] if laser else []) + STAGES
     # where the laser sits, found as `followbot track` finds it (a bag's tf, a CARMEN log's
     # ROBOTLASER records, else the base's origin)
     try:
@@ -249,6 +264,7 @@ def track_log(
         for stage in settings.values():
             stage["laser_mount"] = msgspec.to_builtins(mount)
     run = LogRun(log=label, laser_mount=f"{mount.describe()} ({source})")
+    run.odometry = "laser_odometry" if laser else ("recording" if odometry else "none")
 
     def on_people(m, _payload: bytes) -> None:
         run.people[m.stamp_ns] = [(t.id, t.x_m, t.y_m) for t in m.tracks]
@@ -258,7 +274,7 @@ def track_log(
 
     try:
         done = run_pipeline(
-            rec, STAGES, settings, out, max_scans=max_scans, on_people=on_people,
+            rec, stages, settings, out, max_scans=max_scans, on_people=on_people,
             on_target=on_target, label=label, timeout_s=ANSWER_TIMEOUT_S,
             give_up_after=GIVE_UP_AFTER,
         )  # fmt: skip
@@ -486,7 +502,10 @@ class Benchmark:
             return self.runs[preset][key]
         out = self.out / "runs" / preset / key.replace("/", "_")
         try:
-            run = track_log(path, preset, self.args.set, out, label=f"{preset}: {key}", **kw)
+            run = track_log(
+                path, preset, self.args.set, out, label=f"{preset}: {key}",
+                laser_odometry=self.args.laser_odometry, **kw,
+            )  # fmt: skip
         except BenchmarkError as exc:
             self.skip(f"{preset}: {key}", str(exc))
             return None
@@ -644,6 +663,7 @@ class Benchmark:
             "subsampling": "--quick: the slice of QUICK" if self.quick else "none",
             "presets": {p: PRESETS.get(p, {}) for p in self.presets},
             "overrides": self.args.set,
+            "laser_odometry": self.args.laser_odometry,
             "sections": self.sections,
             "followbot_version": __version__,
             "code_fingerprint": code_fingerprint(),
@@ -830,7 +850,9 @@ def markdown(result: dict) -> str:
         lines += [f"Settings changed: {', '.join(meta['overrides'])}.", ""]
     lines += [
         "Every recording ran through laser_legs and tracker as processes in lock-step (as "
-        "`followbot track`), without a camera: the target is " + meta["acquire"] + ".",
+        "`followbot track`; laser_odometry first where the throughput table says so: "
+        f"--laser-odometry {meta.get('laser_odometry', 'auto')}), without a camera: the target "
+        "is " + meta["acquire"] + ".",
         "",
     ]
     rows = summary_rows(result)
@@ -971,12 +993,13 @@ def _throughput_md(d: dict) -> list[str]:
     lines = [
         f"## {title}",
         "",
-        "Scans per second through laser_legs and tracker in lock-step, reading the file "
-        "included; x real time: the recording's duration over the time taken. On a shared "
-        "machine these vary from run to run.",
+        "Scans per second through laser_legs and tracker in lock-step (and laser_odometry "
+        "where the odometry is laser_odometry's), reading the file included; x real time: the "
+        "recording's duration over the time taken. On a shared machine these vary from run "
+        "to run.",
         "",
-        "| preset | recording | scans | s | scans/s | x real time | unanswered scans |",
-        "|---|---|---|---|---|---|---|",
+        "| preset | recording | odometry | scans | s | scans/s | x real time | unanswered scans |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     unanswered = 0
     for preset, runs in d.items():
@@ -984,7 +1007,8 @@ def _throughput_md(d: dict) -> list[str]:
             late = ", ".join(f"{s} {n}" for s, n in r["stage_timeouts"].items()) or "-"
             unanswered += sum(r["stage_timeouts"].values())
             lines.append(
-                f"| {preset} | {name} | {r['scans']} | {r['seconds']} | "
+                f"| {preset} | {name} | {r.get('odometry') or '?'} | {r['scans']} | "
+                f"{r['seconds']} | "
                 f"{_num(r['scans_per_s'], 0)} | {_num(r['x_real_time'], 1)} | {late} |"
             )
     if unanswered:
@@ -1123,6 +1147,11 @@ def build_parser() -> argparse.ArgumentParser:
         "(repeatable; not for the detectors and appearance sections, which measure each "
         "detector and verifier with its defaults)",
     )  # fmt: skip
+    p.add_argument(
+        "--laser-odometry", choices=("auto", "on", "off"), default="auto",
+        help="the laser_odometry stage first, estimating odometry from the scans: auto "
+        "(default) for recordings without odometry, on for every recording, off never",
+    )  # fmt: skip
     p.add_argument("--video", metavar="FILE", help="vtest.avi (default: opencv-doc's)")
     return p
 
@@ -1150,7 +1179,10 @@ def main(argv: list[str] | None = None) -> int:
             refused[preset] = f"preset {preset} is camera-only: the recordings here have no camera"
             continue
         try:
-            settings = tracking_settings(preset, STAGES, False, args.set, odometry=True)
+            laser = args.laser_odometry != "off"  # its --set checked too when it may run
+            settings = tracking_settings(
+                preset, STAGES, False, args.set, odometry=True, laser_odometry=laser
+            )
         except RunError as exc:
             refused[preset] = str(exc)
             continue

@@ -14,6 +14,10 @@ in the base frame of each scan (``frame`` names it; target.csv: scans where the 
 tracked or coasting). Without a camera the target is the nearest person ahead (tracker
 ``acquire: nearest``).
 
+Without odometry in the recording (and no --odom-topic), the laser_odometry stage runs first
+and estimates it from the scans (``--laser-odometry auto``, said on stderr); ``on`` runs it
+instead of the recording's odometry, ``off`` never.
+
 Where the laser sits on the robot (the stages' ``laser_mount``), first found wins:
 ``--laser-pose x,y,yaw_deg``; a ROS bag's /tf_static (then /tf), the chain from
 ``--base-frame`` to ``--laser-frame`` (default: the scans' frame_id) in 2-D; a CARMEN log's
@@ -77,6 +81,11 @@ def main(argv: list[str] | None = None) -> int:
         "--laser-frame", help="the laser's frame in the recording's tf (default: the scans' "
         "frame_id)",
     )  # fmt: skip
+    p.add_argument(
+        "--laser-odometry", choices=("auto", "on", "off"), default="auto",
+        help="estimate the odometry from the scans (the laser_odometry stage): auto (default) "
+        "when the recording has none, on (instead of the recording's), off",
+    )  # fmt: skip
     p.add_argument("--output", required=True, metavar="DIR", help="output folder")
     p.add_argument(
         "--preset", default="followbot", choices=sorted(PRESETS),
@@ -110,10 +119,18 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)  # fmt: skip
             return 2
     odometry = bool(args.odom_topic) if rec is None else "sensors/odom" in rec.mapping.values()
+    laser_odometry = use_laser_odometry(args.laser_odometry, odometry)
+    if laser_odometry:
+        remaps = {src: dst for src, dst in remaps.items() if dst != "sensors/odom"}
+        if rec is not None:
+            rec.mapping = {s: d for s, d in rec.mapping.items() if d != "sensors/odom"}
+        print(laser_odometry_note(odometry), file=sys.stderr)
     stages = ["laser_legs", "tracker"] + (["vision_verify"] if args.image_topic else [])
     settings = tracking_settings(
-        args.preset, stages, bool(args.image_topic), args.set, odometry=odometry
-    )
+        args.preset, stages, bool(args.image_topic), args.set, odometry=odometry,
+        laser_odometry=laser_odometry,
+    )  # fmt: skip
+    stages = (["laser_odometry"] if laser_odometry else []) + stages
     if isinstance(settings, str):
         print(f"followbot track: {settings}", file=sys.stderr)
         return 2
@@ -221,17 +238,48 @@ def open_with_defaults(path: str, remaps: dict[str, str]):
     return rec
 
 
+def use_laser_odometry(mode: str, recorded: bool) -> bool:
+    """Whether laser_odometry runs (``--laser-odometry`` ``mode``), the recording having
+    odometry of its own (``recorded``) or not."""
+    if mode not in ("auto", "on", "off"):
+        raise ValueError(f"laser odometry {mode!r}: expected auto, on or off")
+    return mode == "on" or (mode == "auto" and not recorded)
+
+
+def laser_odometry_note(recorded: bool) -> str:
+    """What a run with laser_odometry says it does."""
+    if recorded:
+        return "odometry: laser_odometry, from the scans, instead of the recording's"
+    return (
+        "odometry: none in the recording; laser_odometry estimates it from the scans "
+        "(--laser-odometry off: run without)"
+    )
+
+
 def tracking_settings(
-    preset: str, stages: list[str], vision: bool, overrides: list[str], *, odometry: bool
+    preset: str,
+    stages: list[str],
+    vision: bool,
+    overrides: list[str],
+    *,
+    odometry: bool,
+    laser_odometry: bool = False,
 ) -> dict | str:
     """Each of ``stages``' settings for a lock-step run of ``preset`` with ``overrides``
-    (``SERVICE.KEY=VALUE``); without vision the target is the nearest person ahead. A bad
-    override gives the reason (str) instead. An unknown preset raises RunError."""
+    (``SERVICE.KEY=VALUE``); without vision the target is the nearest person ahead. With
+    ``laser_odometry`` the laser_odometry stage comes first (its odometry then counts as the
+    recording's). A bad override gives the reason (str) instead. An unknown preset raises
+    RunError."""
     from followbot.runner import stage_settings
     from followbot.services.runtime.settings import SettingsError, apply_overrides
 
+    odometry = odometry or laser_odometry
     all_settings = stage_settings(preset, lockstep=True, odometry=odometry, vision=vision)
     settings = {s: v for s, v in all_settings.items() if s in stages}
+    if laser_odometry:
+        stages = ["laser_odometry", *stages]
+        # the recording sets the pace: a gap between its scans is no stamp from the future
+        settings = {"laser_odometry": {"clock": {"max_ahead_s": None}}, **settings}
     if not vision:
         settings["tracker"]["acquire"] = "nearest"
     for item in overrides:

@@ -378,6 +378,8 @@ def _service_setups():
     from followbot.services.controller.node import setup as controller
     from followbot.services.laser_legs.node import LaserLegsSettings
     from followbot.services.laser_legs.node import setup as laser_legs
+    from followbot.services.laser_odometry.node import LaserOdometrySettings
+    from followbot.services.laser_odometry.node import setup as laser_odometry
     from followbot.services.runtime.monitor import MonitorSettings
     from followbot.services.runtime.monitor import setup as monitor
     from followbot.services.runtime.router import RouterSettings
@@ -395,6 +397,7 @@ def _service_setups():
         "sim": (SimSettings, sim),
         "synthetic": (SyntheticSettings, synthetic),
         "laser_legs": (LaserLegsSettings, laser_legs),
+        "laser_odometry": (LaserOdometrySettings, laser_odometry),
         "vision_verify": (VisionVerifySettings, vision_verify),
         "tracker": (TrackerNodeSettings, tracker),
         "controller": (ControllerNodeSettings, controller),

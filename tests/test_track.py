@@ -45,6 +45,10 @@ def test_a_ros1_bag_is_tracked_end_to_end_and_deterministically(tmp_path):
     assert a.returncode == 0, a.stderr
     assert b.returncode == 0, b.stderr
     assert "tracked 250 scans" in a.stdout
+    # the bag has no odometry: laser_odometry estimates it, in lock-step like the others
+    assert "laser_odometry estimates it from the scans" in a.stderr
+    assert (tmp_path / "a" / "laser_odometry.log").is_file()
+    assert "did not answer in time" not in a.stdout
     people, target = rows(tmp_path / "a" / "people.csv"), rows(tmp_path / "a" / "target.csv")
     assert people[0] == ["stamp_ns", "id", "x_m", "y_m", "vx_mps", "vy_mps", "frame"]
     assert {r[6] for r in people[1:]} == {"base_link"}
@@ -146,6 +150,22 @@ def test_two_lockstep_runs_with_vision_give_the_same_tracks(tmp_path):
     a, b = answers(runs[0]), answers(runs[1])
     assert any(v is not None and v.chosen >= 0 for (_, n), v in a.items() if n == "verification")
     assert a == b, next(k for k in a if a[k] != b.get(k))
+
+
+def test_laser_odometry_runs_when_the_recording_has_no_odometry_unless_switched_off():
+    from followbot.track import tracking_settings, use_laser_odometry
+
+    assert use_laser_odometry("auto", False) and not use_laser_odometry("auto", True)
+    assert use_laser_odometry("on", True) and not use_laser_odometry("off", False)
+    stages = ["laser_legs", "tracker"]
+    s = tracking_settings("thesis", stages, False, ["laser_odometry.keyframe_distance_m=0.5"],
+                          odometry=False, laser_odometry=True)  # fmt: skip
+    assert s["laser_odometry"]["keyframe_distance_m"] == 0.5
+    # the stages wait for its odometry as for a recording's (lock-step rule 5)
+    assert s["tracker"]["lockstep_odometry_wait_s"] > 0
+    assert s["laser_legs"]["lockstep_odometry_wait_s"] > 0
+    off = tracking_settings("thesis", stages, False, [], odometry=False)
+    assert "laser_odometry" not in off and "lockstep_odometry_wait_s" not in off["tracker"]
 
 
 def test_odometry_goes_out_before_the_scan_it_brackets():

@@ -9,14 +9,7 @@ looked at that point (a *view*) and found something there (a *hit*).
 Ego-motion. The leg_tracker bags hold no odometry or tf, and the robot moves in ``negative_2``
 (~0.6 m/s, ~15°/s: 60-70 % of the beams change by > 5 cm from one scan to the next), so the
 scans are registered to each other (``ego_motion=True``): each scan is matched to the previous
-one by projective point-to-line ICP (Censi's PL-ICP idea in its simplest form, all numpy)::
-
-    q_i  = R(θ) c_i + t                      current point i in the previous scan's frame
-    j(i) = the beam of the previous scan nearest q_i among the ±w beams around q_i's bearing
-    e_i  = n_j · (q_i − p_j)                 distance to the previous surface (normal n_j)
-    J_i  = [n_j,x, n_j,y, n_j · perp(q_i − t)]   perp(v) = (−v_y, v_x): ∂q/∂θ
-    (Σ JᵀJ + λI) δ = −Σ Jᵀ e,  (t, θ) += δ   Gauss-Newton, 3 parameters, inliers |q − p| < d_max
-
+one by projective point-to-line ICP (services/common/scanmatch.py, shared with laser_odometry),
 starting from a constant-velocity guess. Poses are chained into an odometry frame that starts at
 the stream's first scan. Too few inliers means the match failed: the history is cleared (a
 wrong pose would mark people static). ``ego_motion=False`` takes the laser as still (the
@@ -49,28 +42,9 @@ import numpy as np
 
 from followbot.schemas import LaserScan
 from followbot.services.common.scan import beam_geometry, valid_mask
+from followbot.services.common.scanmatch import ScanFrame, beam_index, compose, match_scans
 
 __all__ = ["StaticBackground", "match_scans"]
-
-TWO_PI = 2.0 * math.pi
-
-
-def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose a ∘ b of (x, y, θ) poses: b given in a's frame."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
-
-
-def _beam_index(phi: np.ndarray, angle_min_rad: float, increment_rad: float, n: int) -> np.ndarray:
-    """Beam index nearest each bearing ``phi`` (any shape), -1 where no beam looks there."""
-    inc = abs(increment_rad)
-    u = np.mod((phi - angle_min_rad) * (1.0 if increment_rad >= 0 else -1.0), TWO_PI)
-    b = np.floor(u / inc + 0.5).astype(np.intp)
-    full = round(TWO_PI / inc)
-    b[b == full] = 0  # a full circle: the last bin wraps to beam 0
-    b[b >= n] = -1
-    return b
-
 
 #: A scan is taken as seen from where the previous one was, without matching, when the last
 #: match left the laser still (a constant-velocity guess under these) and at most
@@ -80,107 +54,6 @@ STILL_GUESS_M = 0.01
 STILL_GUESS_RAD = math.radians(0.2)
 STILL_CHANGE_M = 0.05
 STILL_FRACTION = 0.05
-
-#: Half-width (beams) of the window searched around a point's bearing when matching.
-MATCH_WINDOW = 3
-#: Coordinates given to beams without a usable surface normal: never the nearest.
-_FAR = 1.0e6
-
-
-class _Frame:
-    """One scan's points in its own frame, with per-beam surface normals (for matching).
-
-    ``surf`` is (4, n + 2w): x, y, normal x, normal y, padded with ``w = MATCH_WINDOW`` beams
-    on both sides; beams without a usable normal (and the pads) sit at ``_FAR``.
-    """
-
-    __slots__ = ("n_normals", "ok", "r", "surf", "x", "y")
-
-    def __init__(self, r: np.ndarray, ok: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> None:
-        self.r = np.where(ok, r, np.nan)
-        self.ok = ok
-        self.x = x = np.where(ok, r * cos, 0.0)
-        self.y = y = np.where(ok, r * sin, 0.0)
-        n = r.shape[0]
-        w = MATCH_WINDOW
-        surf = np.full((4, n + 2 * w), _FAR)
-        surf[2:] = 0.0
-        if n >= 3:
-            # normal from the neighbours on both sides (a locally smooth surface only)
-            tx = x[2:] - x[:-2]
-            ty = y[2:] - y[:-2]
-            t2 = tx * tx + ty * ty
-            good = ok[2:] & ok[:-2] & ok[1:-1] & (t2 > 1e-8) & (t2 < 0.04)
-            norm = np.sqrt(np.where(good, t2, 1.0))
-            sl = slice(w + 1, w + n - 1)
-            surf[0, sl] = np.where(good, x[1:-1], _FAR)
-            surf[1, sl] = np.where(good, y[1:-1], _FAR)
-            surf[2, sl] = -ty / norm
-            surf[3, sl] = tx / norm
-            self.n_normals = int(np.count_nonzero(good))
-        else:
-            self.n_normals = 0
-        self.surf = surf
-
-
-def match_scans(
-    prev: _Frame,
-    cur: _Frame,
-    angle_min_rad: float,
-    increment_rad: float,
-    guess: np.ndarray,
-    *,
-    stride: int = 3,
-    iterations: int = 10,
-    max_distance_m: tuple[float, ...] = (0.4, 0.2, 0.1),
-) -> tuple[np.ndarray, float]:
-    """Pose (x, y, θ) of the ``cur`` scan in the ``prev`` scan's frame, and the share of the
-    matched points that are inliers at the end (0 when too few points to match).
-
-    ``max_distance_m``: the inlier distance of the first iterations, the last one after.
-    """
-    n = prev.r.shape[0]
-    sel = np.flatnonzero(cur.ok[::stride]) * stride
-    if sel.shape[0] < 10 or prev.n_normals < 10:
-        return guess.copy(), 0.0
-    cx, cy = cur.x[sel], cur.y[sel]
-    tx, ty, th = (float(v) for v in guess)
-    offsets = np.arange(2 * MATCH_WINDOW + 1)
-    rows = np.arange(sel.shape[0])
-    surf = prev.surf
-    frac = 0.0
-    for it in range(iterations):
-        c, s = math.cos(th), math.sin(th)
-        qx = c * cx - s * cy + tx
-        qy = s * cx + c * cy + ty
-        b = _beam_index(np.arctan2(qy, qx), angle_min_rad, increment_rad, n)
-        seen = b >= 0
-        bw = b[:, None] + offsets  # padded indices: beam b - w .. b + w
-        dx = qx[:, None] - surf[0, bw]
-        dy = qy[:, None] - surf[1, bw]
-        d2 = dx * dx + dy * dy
-        j = d2.argmin(axis=1)
-        dmax = max_distance_m[min(it, len(max_distance_m) - 1)]
-        inl = (d2[rows, j] < dmax * dmax) & seen
-        m = int(np.count_nonzero(inl))
-        frac = m / sel.shape[0]
-        if m < 10:
-            return np.array([tx, ty, th]), 0.0
-        jr = rows[inl]
-        jb = bw[jr, j[inl]]
-        nx, ny = surf[2, jb], surf[3, jb]
-        e = nx * dx[jr, j[inl]] + ny * dy[jr, j[inl]]  # e_i = n · (q − p)
-        jt = ny * (qx[inl] - tx) - nx * (qy[inl] - ty)  # ∂e/∂θ = n · perp(q − t)
-        J = np.array([nx, ny, jt])
-        H = J @ J.T
-        H.flat[::4] += 1e-6
-        delta = np.linalg.solve(H, -(J @ e))
-        tx += float(delta[0])
-        ty += float(delta[1])
-        th += float(delta[2])
-        if it >= len(max_distance_m) - 1 and abs(delta[0]) + abs(delta[1]) + abs(delta[2]) < 1e-3:
-            break
-    return np.array([tx, ty, th]), frac
 
 
 class StaticBackground:
@@ -229,7 +102,7 @@ class StaticBackground:
         self._stamps = np.zeros(self.max_scans, dtype=np.int64)
         self._count = 0
         self._head = 0  # next slot of the ring
-        self._prev: _Frame | None = None
+        self._prev: ScanFrame | None = None
         self._prev_stamp: int | None = None
         self._ref_stamp: int | None = None  # the stamp of self._prev
         self._pose = np.zeros(3)
@@ -269,7 +142,7 @@ class StaticBackground:
             self._clear()
         ok = valid_mask(raw, scan.range_min_m, scan.range_max_m) & np.isfinite(raw)
         _, cos, sin = beam_geometry(amin, inc, n)
-        frame = _Frame(np.where(ok, raw, 0.0), ok, cos[:n], sin[:n])
+        frame = ScanFrame(np.where(ok, raw, 0.0), ok, cos[:n], sin[:n])
         still = False
         if self._prev is not None and self.ego_motion and inc != 0.0:
             dt = stamp - (self._ref_stamp or stamp)
@@ -288,13 +161,13 @@ class StaticBackground:
                 self._clear()
                 self._key = key
             else:
-                self._pose = _compose(self._pose, step)
+                self._pose = compose(self._pose, step)
                 self._velocity = step / dt if dt > 0 else np.zeros(3)
         hits, views = self._query(np.asarray(x, np.float64), np.asarray(y, np.float64), stamp, scan)
         self._remember(frame, stamp, n, still)
         return hits, views
 
-    def _still(self, frame: _Frame, guess: np.ndarray) -> bool:
+    def _still(self, frame: ScanFrame, guess: np.ndarray) -> bool:
         """True when the laser was still at the last match (its guess moves it by less than
         STILL_GUESS_M / STILL_GUESS_RAD) and at most STILL_FRACTION of the beams returning in
         both this scan and the last matched one changed by more than STILL_CHANGE_M (people
@@ -307,7 +180,7 @@ class StaticBackground:
             changed = np.count_nonzero(np.abs(frame.r - prev.r) > STILL_CHANGE_M)
         return both >= 10 and changed <= STILL_FRACTION * both
 
-    def _remember(self, frame: _Frame, stamp: int, n: int, still: bool = False) -> None:
+    def _remember(self, frame: ScanFrame, stamp: int, n: int, still: bool = False) -> None:
         if not still:  # the scan the next one is matched to
             self._prev = frame
             self._ref_stamp = stamp
@@ -347,7 +220,7 @@ class StaticBackground:
         lx = ci * dx + si * dy  # ... in each remembered scan's frame (m, k)
         ly = -si * dx + ci * dy
         rho = np.hypot(lx, ly)
-        b = _beam_index(
+        b = beam_index(
             np.arctan2(ly, lx), float(scan.angle_min_rad), float(scan.angle_increment_rad), n
         )
         seen = (b >= 0) & (rho >= scan.range_min_m) & (rho <= scan.range_max_m)

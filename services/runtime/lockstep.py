@@ -26,6 +26,7 @@ M = TypeVar("M")
 
 #: Output topic of each stage that answers every scan (rule 2 of the protocol).
 STAGE_OUTPUT = {
+    "laser_odometry": "sensors/odom",  # a recording without odometry: odometry from its scans
     "laser_legs": "perception/candidates",
     "camera_blobs": "perception/candidates",  # seed 001's camera candidates (answer_on: scan)
     "vision_verify": "perception/verification",

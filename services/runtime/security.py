@@ -66,12 +66,15 @@ class Role:
 _SENSORS = ("sensors/scan", "sensors/image", "sensors/odom")
 
 #: Each role's rights. Every topic has one publishing role (sensors: whichever source runs:
-#: sim, synthetic or the robot's own driver); the tests check this table against what each
-#: service declares.
+#: sim, synthetic or the robot's own driver; odometry also laser_odometry); the tests check
+#: this table against what each service declares.
 ROLES: dict[str, Role] = {
     "sim": Role(publishes=(*_SENSORS, "sim/truth")),
     "synthetic": Role(publishes=_SENSORS),
     "driver": Role(publishes=_SENSORS, nodes=()),  # a real robot's driver: sensors only
+    # odometry from the scans, on a robot whose driver has none (its driver then does not
+    # publish sensors/odom)
+    "laser_odometry": Role(publishes=("sensors/odom",)),
     "laser_legs": Role(publishes=("perception/candidates",)),
     "vision_verify": Role(
         publishes=("perception/verification", "perception/target_model"),
