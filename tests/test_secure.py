@@ -374,6 +374,8 @@ class _RecordingBus(FakeBus):
 
 
 def _service_setups():
+    from followbot.services.camera_blobs.node import CameraBlobsSettings
+    from followbot.services.camera_blobs.node import setup as camera_blobs
     from followbot.services.controller.node import ControllerNodeSettings
     from followbot.services.controller.node import setup as controller
     from followbot.services.laser_legs.node import LaserLegsSettings
@@ -397,6 +399,7 @@ def _service_setups():
         "sim": (SimSettings, sim),
         "synthetic": (SyntheticSettings, synthetic),
         "laser_legs": (LaserLegsSettings, laser_legs),
+        "camera_blobs": (CameraBlobsSettings, camera_blobs),
         "laser_odometry": (LaserOdometrySettings, laser_odometry),
         "vision_verify": (VisionVerifySettings, vision_verify),
         "tracker": (TrackerNodeSettings, tracker),
@@ -411,7 +414,9 @@ def test_the_rights_of_a_role_are_what_its_service_declares(service):
     """ROLES must match the code: a service that starts publishing a new topic needs a rule
     (or the router drops it), and a right nobody uses is a right too many."""
     settings_type, setup = _service_setups()[service]
-    settings = load_settings(settings_type, None, ["robot=r1", "log_level=error"])
+    extra = ["colour={hue_lo: 0, hue_hi: 10, sat_lo: 80, sat_hi: 255}"]  # camera_blobs needs one
+    overrides = ["robot=r1", "log_level=error", *(extra if service == "camera_blobs" else [])]
+    settings = load_settings(settings_type, None, overrides)
     bus = _RecordingBus(FakeNetwork())
     node = Node(service, settings, bus)
     try:

@@ -66,7 +66,8 @@ class Role:
 _SENSORS = ("sensors/scan", "sensors/image", "sensors/odom")
 
 #: Each role's rights. Every topic has one publishing role (sensors: whichever source runs:
-#: sim, synthetic or the robot's own driver; odometry also laser_odometry); the tests check
+#: sim, synthetic or the robot's own driver; odometry also laser_odometry; candidates
+#: laser_legs, or camera_blobs in the camera-only preset); the tests check
 #: this table against what each service declares.
 ROLES: dict[str, Role] = {
     "sim": Role(publishes=(*_SENSORS, "sim/truth")),
@@ -76,6 +77,8 @@ ROLES: dict[str, Role] = {
     # publish sensors/odom)
     "laser_odometry": Role(publishes=("sensors/odom",)),
     "laser_legs": Role(publishes=("perception/candidates",)),
+    # the camera-only preset's candidate source, in laser_legs' place (one of the two runs)
+    "camera_blobs": Role(publishes=("perception/candidates",)),
     "vision_verify": Role(
         publishes=("perception/verification", "perception/target_model"),
         answers=("perception/target_model",),
