@@ -113,7 +113,8 @@ def test_the_pipeline_publishes_no_more_false_people_than_today(quick):
 def test_the_legs360_walker_is_tracked_at_least_as_often_as_today(quick):
     f = quick[0]["legs360"]["followbot"]
     assert f["labelled_scans"] == 119
-    # measured: walker tracked 11.8 %, followed 0 %, 5.75 ghosts per scan
+    # measured: walker tracked 11.8 %, followed 0 %, 5.75 ghosts per scan; 8.4 % and 5.76 since
+    # acquire: nearest takes the first target among people (docs/tracker_log.md, issue 35)
     assert f["walker_tracked"] >= 0.07
     assert f["ghosts_per_scan"] <= 6.3
 

@@ -5,6 +5,7 @@ Pure logic on numpy arrays and messages, no Zenoh (the node is ``node.py``). DES
 
 - egomotion.py -- the odometry pose at a scan's stamp, the SE(2) change between scans;
 - lifecycle.py -- tracks: start, confirmation, misses, deletion, coasting;
+- initiators.py -- when a tentative track is a person (the ``initiator`` setting);
 - association.py -- units, gates and the assignment rule;
 - identity.py -- which track is the target: acquisition, late vision, rollback;
 - search.py -- where to look for a lost target;
@@ -24,7 +25,8 @@ odometry moves and every output is in:
 5. update the matched tracks; count a miss on the others; start a track on every unmatched
    candidate; delete the tracks past their misses;
 6. acquire (without vision) or search for a lost target;
-7. report the target (``TrackState``) and every confirmed person (``People``), and record
+7. report the target (``TrackState``) and every person (``People``; the initiator says which
+   tracks are people, initiators.py), and record
    which track took which candidate (the history late vision needs).
 """
 
@@ -259,7 +261,9 @@ class Tracker:
                 if t.id == self.target_id:
                     scale = 1.0 if scales is None else float(scales[i])
                     report.shift_after_update(t, zs[i], lone[i], scale, s.lone_leg_output_m)
-        return self._tracks.count(ids, a.matched, stamp)
+        cands = a.candidates.candidates
+        took = {tid: cands[a.unit_cand[u]] for tid, u in a.matched.items()}
+        return self._tracks.count(ids, took, stamp, a.candidates)
 
     def _lifecycle(self, a: Association, stamp: int) -> dict[int, int]:
         """Step 5, second half: start a track on each unit nobody took, delete the tracks past
@@ -267,7 +271,8 @@ class Tracker:
         taken = set(a.matched.values())
         for u in range(len(a.unit_cand)):
             if u not in taken:
-                a.matched[self._tracks.new(a.points[a.first[u]], stamp).id] = u
+                c = a.candidates.candidates[a.unit_cand[u]]
+                a.matched[self._tracks.new(a.points[a.first[u]], stamp, c, a.candidates).id] = u
         matched = a.by_candidate(self.target_id)
         for t in self._tracks.delete_lost():
             if t.id == self.target_id:

@@ -2,7 +2,8 @@
 
 Acquisition. With vision, a target model (perception/target_model: its laser position) or a
 verification's chosen candidate makes a track the target; without a camera (``acquire:
-nearest``), the nearest candidate ahead within ``identity.acquire_range_m``.
+nearest``), the nearest person ahead (a track the initiator confirmed) within
+``identity.acquire_range_m``.
 
 Late vision (DESIGN.md "Timing model"). A :class:`~followbot.schemas.Verification` names the
 scan stamp whose candidates it judged. The tracker keeps, for the last ``history_scans``
@@ -171,19 +172,19 @@ class Identity:
     # ------------------------------------------------------------------ acquisition
 
     def acquire_by_laser(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
-        """Without vision: the first target is the nearest candidate ahead (``acquire:
-        nearest``); a lost one is re-taken by a walker near where it was lost, soon after."""
+        """Without vision: the first target is the nearest person ahead (``acquire: nearest``:
+        a track the initiator confirmed, by the candidate it took this scan); a lost one is
+        re-taken by a walker near where it was lost, soon after."""
         s, si = self.settings, self.settings.identity
         if not self.had_target and s.acquire == "nearest" and len(z):
             r = np.hypot(z[:, 0], z[:, 1])
             bearing = np.abs(np.arctan2(z[:, 1], z[:, 0]))
             ahead = (bearing <= math.radians(si.acquire_bearing_deg)) & (r <= si.acquire_range_m)
-            if ahead.any():
-                c = int(np.argmin(np.where(ahead, r, np.inf)))
-                for tid, ci in matched.items():
-                    if ci == c:
-                        self.set_target(tid)
-                        return
+            people = [(float(r[ci]), tid) for tid, ci in matched.items()
+                      if ahead[ci] and self._tracks.by_id[tid].person]  # fmt: skip
+            if people:
+                self.set_target(min(people)[1])
+                return
         lost_at = self._search.lost_at
         if not self.had_target or vision or lost_at is None or si.laser_reacquire_m <= 0:
             return

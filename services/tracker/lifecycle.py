@@ -1,9 +1,10 @@
-"""Track lifecycle: start (initiator), confirmation, misses and deletion (deleter), coasting.
+"""Track lifecycle: start, confirmation (the initiator), misses and deletion, coasting.
 
-A track starts on every candidate no track took, and is reported once it has taken
-``confirm_hits`` candidates. It counts one miss per scan without a candidate and is deleted
-after more than ``max_misses`` consecutive misses (thesis 3.6.2.8: 8, about 1 s at 120 ms) or
-when its estimator says so (the UKF's variance rule).
+A track starts on every candidate no track took, and is a person -- reported -- once the
+initiator says so (initiators.py: ``hits``, the thesis, after ``confirm_hits`` candidates;
+``evidence``, once it travelled as a walker does). It counts one miss per scan without a
+candidate and is deleted after more than ``max_misses`` consecutive misses (thesis 3.6.2.8: 8,
+about 1 s at 120 ms) or when its estimator says so (the UKF's variance rule).
 
 Coasting: a track that missed moves on at its person's recent velocity -- the median of the
 velocities between its last updates over ``coast_velocity_s`` -- instead of staying where it
@@ -22,10 +23,12 @@ from collections import deque
 import msgspec
 import numpy as np
 
+from followbot.schemas import Candidate, PersonCandidates
 from followbot.services.common.geometry import Pose
 from followbot.services.common.geometry import rotation as _rot
 
 from .estimators import Estimator, EstimatorFactory
+from .initiators import INITIATORS, Sighting
 from .settings import TrackerSettings
 
 __all__ = ["ScanTime", "Track", "Tracks"]
@@ -49,10 +52,12 @@ class Track:
         "anchor",
         "born_ns",
         "estimator",
+        "evidence",
         "hits",
         "id",
         "last_seen_ns",
         "misses",
+        "person",
         "shift",
         "steps",
     )
@@ -70,6 +75,10 @@ class Track:
         """(stamp, vx, vy): velocity between two updates, odometry frame, recent updates."""
         self.shift = np.zeros(2)
         """Added to the estimate in what the tracker reports (lone_leg_output_m), base frame."""
+        self.person = False
+        """The initiator confirmed it (initiators.py): reported, and stays so until deleted."""
+        self.evidence: object | None = None
+        """What the initiator gathered towards confirming it."""
 
     @property
     def reported(self) -> np.ndarray:
@@ -90,13 +99,22 @@ class Tracks:
         self._now = now
         self.by_id: dict[int, Track] = {}
         self._next_id = 1
+        self.initiator = INITIATORS[settings.initiator](settings)
 
-    def new(self, xy: np.ndarray, stamp_ns: int) -> Track:
-        """A track started at ``xy`` (base frame); its random draws seeded by (seed, id)."""
+    def new(
+        self,
+        xy: np.ndarray,
+        stamp_ns: int,
+        candidate: Candidate | None = None,
+        message: PersonCandidates | None = None,
+    ) -> Track:
+        """A track started at ``xy`` (base frame) on ``candidate`` of ``message``; its random
+        draws seeded by (seed, id)."""
         tid = self._take_id()
         rng = np.random.default_rng([self.settings.seed, tid])
         track = Track(tid, self._make(float(xy[0]), float(xy[1]), rng), stamp_ns)
         self.by_id[tid] = track
+        self._took(track, stamp_ns, candidate, message)
         if self.settings.coast_velocity_s > 0:
             self.learn_velocity(track, stamp_ns, self._now.pose)  # where it was first seen
         return track
@@ -106,6 +124,7 @@ class Tracks:
         someone else, who keeps the estimate under a new id)."""
         other = Track(self._take_id(), track.estimator, track.born_ns)
         other.hits, other.misses = hits, track.misses
+        other.person = True  # the one the target followed: a person
         other.last_seen_ns = track.last_seen_ns
         self.by_id[other.id] = other
         return other
@@ -133,9 +152,17 @@ class Tracks:
             if t.misses > 0 and t.steps and t.estimator.coasts_in_place:
                 t.estimator.ego_motion(_I2, self.velocity(t, self._now.pose) * dt)
 
-    def count(self, ids: list[int], matched: dict[int, int], stamp: int) -> list[tuple[Track, int]]:
-        """A hit or a miss for each of ``ids``; returns (track, last seen before this scan) of
-        those that took a candidate, whose velocities :meth:`learn_velocity` records later."""
+    def count(
+        self,
+        ids: list[int],
+        matched: dict[int, Candidate],
+        stamp: int,
+        message: PersonCandidates | None = None,
+    ) -> list[tuple[Track, int]]:
+        """A hit or a miss for each of ``ids`` (``matched``: track id -> the candidate of
+        ``message`` it took, its estimate updated with it); returns (track, last seen before
+        this scan) of those that took a candidate, whose velocities :meth:`learn_velocity`
+        records later."""
         learn: list[tuple[Track, int]] = []
         for tid in ids:
             t = self.by_id[tid]
@@ -145,9 +172,25 @@ class Tracks:
                 t.misses = 0
                 t.hits += 1
                 t.last_seen_ns = stamp
+                self._took(t, stamp, matched[tid], message)
             else:
                 t.misses += 1
         return learn
+
+    def _took(
+        self,
+        t: Track,
+        stamp: int,
+        candidate: Candidate | None,
+        message: PersonCandidates | None,
+    ) -> None:
+        """Tell the initiator that ``t`` took ``candidate`` of ``message``: where its estimate
+        is after the update, in the odometry frame when the scan's pose is known."""
+        xy = np.array(t.estimator.mean[:2], dtype=float)
+        pose = self._now.pose
+        if pose is not None:
+            xy = _rot(pose[2]) @ xy + np.array(pose[:2])
+        self.initiator.took(t, Sighting(xy, pose is not None, stamp, candidate, message))
 
     def delete_lost(self) -> list[Track]:
         """Delete the tracks past ``max_misses`` or expired by their estimator; returns them."""

@@ -1,4 +1,5 @@
-"""What the tracker publishes: the target (TrackState) and every confirmed person (People).
+"""What the tracker publishes: the target (TrackState) and every person (People): the tracks
+the initiator confirmed (initiators.py), and the target.
 
 Target status: ``initialising`` (no target yet), ``tracking`` (the target took a candidate
 this scan), ``coasting`` (1..max_misses misses: the estimate is a prediction), ``lost`` (more
@@ -85,10 +86,10 @@ def people(
     estimator: str,
     settings: TrackerSettings,
 ) -> People:
-    """tracking/people: every track confirmed (confirm_hits) or the target."""
+    """tracking/people: every track the initiator confirmed, and the target."""
     out = []
     for t in tracks.values():
-        if t.hits < settings.confirm_hits and t.id != target_id:
+        if not t.person and t.id != target_id:
             continue
         m = t.estimator.mean
         xy = t.reported if t.id == target_id else m[:2]

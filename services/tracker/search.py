@@ -302,9 +302,9 @@ class Search:
         self._looked.add(best.id)
 
     def _eligible(self, gate: Gate | None, last: Gate | None) -> list[Track]:
-        """Confirmed tracks seen this scan, far enough from the laser, not rejected too often,
-        inside the gate -- or, past search.max_s, newcomers away from where the target should be
-        (there the camera looks at the point itself)."""
+        """People (initiators.py) seen this scan, far enough from the laser, not rejected too
+        often, inside the gate -- or, past search.max_s, newcomers away from where the target
+        should be (there the camera looks at the point itself)."""
         s = self.settings
 
         def here(t: Track) -> bool:
@@ -315,7 +315,7 @@ class Search:
         return [
             t
             for t in self._tracks.by_id.values()
-            if t.hits >= s.confirm_hits
+            if t.person
             and t.misses == 0
             and self._rejected.get(t.id, 0) < s.search.rejections
             and float(np.hypot(*t.position)) >= s.search.min_range_m

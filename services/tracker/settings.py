@@ -23,6 +23,7 @@ from .estimators import estimator_factory
 __all__ = [
     "RETIRED_SETTINGS",
     "AssociationSettings",
+    "EvidenceSettings",
     "IdentitySettings",
     "SearchSettings",
     "TrackerSettings",
@@ -252,6 +253,36 @@ class SearchSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     docs/tracker_log.md: re-acquired within 1 s 31 of 55 occlusions (28 of 54 without)."""
 
 
+class EvidenceSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """``initiator: evidence``: what makes a tentative track a person (initiators.py), judged
+    on its sightings of the last ``window_s``. Every condition must hold at one update; the
+    track is a person from then on."""
+
+    window_s: Annotated[float, msgspec.Meta(gt=0)] = 3.0
+    """How far back the sightings are judged: a track on clutter that took a candidate now
+    and then, or hopped to other clutter after a long gap, shows no walk within it."""
+    min_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 5
+    """Candidates the track took within the window, at the least (a scan rate of at least
+    min_hits / window_s is needed to confirm anyone)."""
+    min_travel_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    """How far its estimate went within the window, from the first sighting to the last
+    (odometry frame; without odometry the base frame), at the least. ROS leg_tracker: ~0.5 m."""
+    min_straightness: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.6
+    """That travel over the length of the path it took, at the least: a walker goes
+    somewhere, a track jittering in place or hopping between clutter does not."""
+    path_step_m: Annotated[float, msgspec.Meta(gt=0)] = 0.1
+    """The path is measured between positions this far apart, so the estimate's jitter round
+    a standing person does not count as walking."""
+    max_speed_mps: Annotated[float, msgspec.Meta(gt=0)] = 2.5
+    """The travel over the time it took, at the most (a brisk walk): a track that jumped from
+    one thing to another is not a walker."""
+    min_confidence: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    """The mean detector confidence of the candidates it took, at the least (0: any)."""
+    edge_margin_deg: Annotated[float, msgspec.Meta(ge=0, le=90)] = 10.0
+    """A candidate with a leg this near either end of the laser's view (a laser that does
+    not see all round) is no evidence: it is not a sighting (0: off)."""
+
+
 class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     retired_settings: ClassVar[dict[str, str]] = RETIRED_SETTINGS
 
@@ -264,9 +295,15 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     max_misses: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = 8
     """A track is deleted after more than this many consecutive misses (thesis 3.6.2.8: 8,
     about 1 s at 120 ms); the target is then lost."""
+    initiator: Literal["hits", "evidence"] = "hits"
+    """When a tentative track becomes a person -- reported in tracking/people, looked at while
+    the target is lost, a first target for ``acquire: nearest`` (initiators.py): ``hits``
+    (the thesis) once it took confirm_hits candidates; ``evidence`` once it travelled as a
+    walker does (``evidence.*``). Either way it stays a person until deleted."""
     confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
-    """A new track is reported in tracking/people (and looked at while the target is lost)
-    once it took this many candidates."""
+    """``initiator: hits``: a new track is a person once it took this many candidates."""
+    evidence: EvidenceSettings = msgspec.field(default_factory=EvidenceSettings)
+    """``initiator: evidence``'s rule: ``--set evidence.min_travel_m=0.4``."""
     coast_velocity_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """Beyond the thesis: a track that missed its candidate moves on at the person's recent
     velocity -- the median of its step velocities over this many seconds, so one update
@@ -291,7 +328,8 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     docs/tracker_log.md: RMSE <= 0.08 m on 75 of 76 runs (69 without)."""
     acquire: Literal["vision", "nearest"] = "vision"
     """How the first target is chosen: by vision (a verification or perception/target_model),
-    or, without a camera, the nearest candidate ahead within identity.acquire_range_m."""
+    or, without a camera, the nearest person ahead (a track the initiator confirmed) within
+    identity.acquire_range_m."""
     vision_lag_scans: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 0
     """Lock-step: apply the verification of scan k at the step of scan k + N (>= k + 1)."""
     vision_stale_s: Annotated[float, msgspec.Meta(gt=0)] = 2.0

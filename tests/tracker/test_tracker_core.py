@@ -1628,6 +1628,8 @@ def test_lone_leg_output_leaves_whom_the_target_takes_unchanged():
             still_robot(trk, k * SCAN_NS)
             x = 1.9 + 0.01 * k
             target, _ = trk.step(_one_or_two_legs(k * SCAN_NS, 1 + k % 2, x, behind=x + 0.35))
+            if k == 0:  # (the first target is a person: taken at its second candidate)
+                continue
             seen.append((target.track_id, *trk.tracks[target.track_id].position))
         runs[name] = (seen, target)
     assert runs["output"][0] == runs["thesis"][0]
