@@ -2,8 +2,10 @@
 
 A track starts on every candidate no track took, and is reported once it has taken
 ``confirm_hits`` candidates. It counts one miss per scan without a candidate and is deleted
-after more than ``max_misses`` consecutive misses (thesis 3.6.2.8: 8, about 1 s at 120 ms) or
-when its estimator says so (the UKF's variance rule).
+by the ``deleter`` (:data:`DELETERS`) or when its estimator says so (the UKF's variance
+rule): ``misses``, after more than ``max_misses`` consecutive misses (thesis 3.6.2.8: 8, about
+1 s at 120 ms); ``target_seconds``, the target only once unseen for more than
+``target_keep_s`` of scan time (a gap in seconds, whatever the scan rate), the others so.
 
 Coasting: a track that missed moves on at its person's recent velocity -- the median of the
 velocities between its last updates over ``coast_velocity_s`` -- instead of staying where it
@@ -28,7 +30,7 @@ from followbot.services.common.geometry import rotation as _rot
 from .estimators import Estimator, EstimatorFactory
 from .settings import TrackerSettings
 
-__all__ = ["ScanTime", "Track", "Tracks"]
+__all__ = ["DELETERS", "ScanTime", "Track", "Tracks"]
 
 _NS = 1_000_000_000
 _I2 = np.eye(2)
@@ -79,6 +81,23 @@ class Track:
     @property
     def position(self) -> np.ndarray:
         return self.estimator.mean[:2]
+
+
+def _past_misses(s: TrackerSettings, t: Track, target_id: int, now_ns: int) -> bool:
+    """``deleter: misses``: more than max_misses consecutive misses (the thesis)."""
+    return t.misses > s.max_misses
+
+
+def _past_target_seconds(s: TrackerSettings, t: Track, target_id: int, now_ns: int) -> bool:
+    """``deleter: target_seconds``: the target once unseen longer than target_keep_s (and past
+    max_misses); the others as ``misses``."""
+    if t.misses <= s.max_misses:
+        return False
+    return t.id != target_id or now_ns - t.last_seen_ns > s.target_keep_s * _NS
+
+
+#: deleter name -> whether a track that missed its last ``misses`` scans is gone
+DELETERS = {"misses": _past_misses, "target_seconds": _past_target_seconds}
 
 
 class Tracks:
@@ -149,12 +168,13 @@ class Tracks:
                 t.misses += 1
         return learn
 
-    def delete_lost(self) -> list[Track]:
-        """Delete the tracks past ``max_misses`` or expired by their estimator; returns them."""
+    def delete_lost(self, target_id: int = -1) -> list[Track]:
+        """Delete the tracks the deleter gives up (``target_id``: the target's track, which
+        ``deleter: target_seconds`` keeps longer) or expired by their estimator; returns them."""
+        s, now = self.settings, self._now.stamp_ns
+        past = DELETERS[s.deleter]
         gone = [
-            t
-            for t in self.by_id.values()
-            if t.misses > self.settings.max_misses or t.estimator.expired()
+            t for t in self.by_id.values() if past(s, t, target_id, now) or t.estimator.expired()
         ]
         for t in gone:
             del self.by_id[t.id]
