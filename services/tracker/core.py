@@ -199,7 +199,8 @@ class Tracker:
         for t in self.tracks.values():  # the estimators that weigh every candidate keep them
             t.estimator.observe(candidates)
         z = np.array([[c.x_m, c.y_m] for c in candidates.candidates], dtype=float).reshape(-1, 2)
-        a = self._associator.associate(self.tracks, candidates, z, self.target_id)
+        takers = self._tracks.associable(self.target_id)
+        a = self._associator.associate(takers, candidates, z, self.target_id)
         learn = self._update(a, stamp)
         matched = self._lifecycle(a, stamp)
         flags += self.identity.vision_flags(stamp)

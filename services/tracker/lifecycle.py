@@ -6,6 +6,10 @@ by the ``deleter`` (:data:`DELETERS`) or when its estimator says so (the UKF's v
 rule): ``misses``, after more than ``max_misses`` consecutive misses (thesis 3.6.2.8: 8, about
 1 s at 120 ms); ``target_seconds``, the target only once unseen for more than
 ``target_keep_s`` of scan time (a gap in seconds, whatever the scan rate), the others so.
+Past max_misses that held track takes no candidate (:meth:`Tracks.associable`): it holds the
+target's identity, and the person coming back starts a track that ``identity.laser_retake``
+hands the target to. (Left competing, a standing target's held track took the candidates of a
+passer-by whose lagging track walked through it: docs/tracker_log.md, "Issue 35".)
 
 Coasting: a track that missed moves on at its person's recent velocity -- the median of the
 velocities between its last updates over ``coast_velocity_s`` -- instead of staying where it
@@ -167,6 +171,14 @@ class Tracks:
             else:
                 t.misses += 1
         return learn
+
+    def associable(self, target_id: int) -> dict[int, Track]:
+        """The tracks that may take candidates: every one but a target's track held past
+        max_misses by ``deleter: target_seconds``."""
+        t = self.by_id.get(target_id)
+        if self.settings.deleter == "misses" or t is None or t.misses <= self.settings.max_misses:
+            return self.by_id
+        return {tid: tr for tid, tr in self.by_id.items() if tid != target_id}
 
     def delete_lost(self, target_id: int = -1) -> list[Track]:
         """Delete the tracks the deleter gives up (``target_id``: the target's track, which

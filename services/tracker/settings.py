@@ -293,7 +293,9 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     max_misses consecutive misses, every track (the thesis; at 40 Hz that is 0.2 s).
     ``target_seconds`` (beyond the thesis): the others so; the target only once it has not been
     seen for more than target_keep_s of scan time (and not before max_misses), so it coasts
-    through a gap measured in seconds whatever the scan rate. docs/tracker_log.md, "Issue 35"."""
+    through a gap measured in seconds whatever the scan rate. Past max_misses that track takes
+    no candidate: it holds the identity until identity.laser_retake hands it to the track
+    started on the person (use with ``laser_retake: reach``). docs/tracker_log.md, "Issue 35"."""
     target_keep_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
     """``deleter: target_seconds``: the longest gap the target's track coasts through."""
     confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
