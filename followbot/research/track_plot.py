@@ -11,7 +11,7 @@ with the target on top, so a gap in the target and a person seen where it went a
 glance. ``--until`` / ``--since`` limit the time shown (seconds from the first scan).
 ``--scans RECORDING --at T,T,...`` adds a row of snapshots: the laser's points at the scan
 nearest each time, with the tracks of the 1 s before it and the target then (is the person
-still in the laser's view where the target was lost?).
+still in the laser's view where the target was lost?); the target then is ringed red.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def _snapshot(ax, when: float, pts: np.ndarray, tracks: dict, target: list) -> N
     ax.set_xlim(-0.5, 5.5)
     ax.set_ylim(-4, 4)
     ax.set_aspect("equal")
-    ax.set_title(f"{when:.1f} s: scan, tracks of the last 1 s, target (red)")
+    ax.set_title(f"{when:.1f} s: scan, last 1 s of tracks", fontsize=9)
 
 
 if __name__ == "__main__":
