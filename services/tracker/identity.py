@@ -28,7 +28,9 @@ assignment, so the target no longer jumps onto the person who hid it. ``identity
 consecutive rejections still drop the target.
 
 Re-acquisition of a lost target: by appearance, only where it can be (search.py's gate);
-without vision, by the laser near where it was lost (``laser_reacquire_*``).
+by the laser as ``identity.laser_retake`` says (retake.py): without vision near where it was
+lost (``near_loss``), or, with or without vision, where the person could have walked since last
+seen (``reach``).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from followbot.services.common.geometry import Pose, se2_change, transform_point
 from followbot.services.common.odometry import OdometryBuffer
 
 from .lifecycle import ScanTime, Track, Tracks
+from .retake import RETAKES
 from .search import Search
 from .settings import TrackerSettings
 
@@ -79,6 +82,7 @@ class Identity:
         self._search = search
         self.odometry = odometry
         self._now = now
+        self._retake = RETAKES[settings.identity.laser_retake](settings, tracks, search, now)
         self.target_id = -1
         self.had_target = False
         self.vision_alive = False
@@ -114,6 +118,7 @@ class Identity:
         self.had_target = False
         self._switch = (-1, 0)
         self._breaks.clear()
+        self._retake.forget()
 
     # ------------------------------------------------------------------ target changes
 
@@ -126,13 +131,20 @@ class Identity:
                 if i in self._tracks.by_id:
                     self._tracks.by_id[i].shift = np.zeros(2)
         self.target_id = tid
+        self._retake.forget()
         self._confirmed_index = self.index - 1  # chosen by vision (or a model) just now
         self.had_target = True
         self._search.lost_at = None
         self._switch = (-1, 0)
 
-    def lose_target(self, track: Track) -> None:
+    def lose_target(self, track: Track, by_laser: bool = False) -> None:
+        """The target is lost; ``by_laser``: its track ran out of misses (the laser may re-take
+        it, retake.py), else vision dropped it or the input went stale."""
         self._search.note_loss(track)
+        if by_laser:
+            self._retake.lost(track)
+        else:
+            self._retake.forget()
         self.target_id = -1
         self._switch = (-1, 0)
 
@@ -174,7 +186,7 @@ class Identity:
     def acquire_by_laser(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
         """Without vision: the first target is the nearest person ahead (``acquire: nearest``:
         a track the initiator confirmed, by the candidate it took this scan); a lost one is
-        re-taken by a walker near where it was lost, soon after."""
+        re-taken by the laser as identity.laser_retake says."""
         s, si = self.settings, self.settings.identity
         if not self.had_target and s.acquire == "nearest" and len(z):
             r = np.hypot(z[:, 0], z[:, 1])
@@ -185,22 +197,22 @@ class Identity:
             if people:
                 self.set_target(min(people)[1])
                 return
-        lost_at = self._search.lost_at
-        if not self.had_target or vision or lost_at is None or si.laser_reacquire_m <= 0:
+        if not self.had_target:
             return
-        max_s = si.laser_reacquire_max_s
-        if max_s is not None and self._now.stamp_ns - self._search.lost_ns > max_s * _NS:
-            return  # lost too long ago: whoever passes there now is someone else
-        best, best_d = -1, si.laser_reacquire_m
-        for tid, ci in matched.items():
-            d = float(np.hypot(*(z[ci] - lost_at)))
-            if (
-                d <= best_d
-                and float(np.hypot(*z[ci])) >= si.laser_reacquire_min_range_m
-                and self._tracks.walking(tid, si.laser_reacquire_min_speed_mps)
-            ):
-                best, best_d = tid, d
+        best = self._retake.pick(z, matched, vision, None)
         if best >= 0:
+            self.set_target(best)
+
+    def hand_over(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
+        """The target's track coasts past max_misses (``deleter: target_seconds``): a track
+        the laser re-take rule would take now takes over from it (the person came back where
+        the coasting track did not reach)."""
+        target = self._tracks.by_id.get(self.target_id)
+        if target is None or target.misses <= self.settings.max_misses:
+            return
+        best = self._retake.pick(z, matched, vision, target)
+        if best >= 0:
+            self.lose_target(target)
             self.set_target(best)
 
     def apply_vision(self, pose: Pose | None) -> None:
