@@ -6,10 +6,13 @@ clutter stay put, a walking person's legs do not. :class:`StaticBackground` keep
 scans of one stream and, for any point of the newest scan, counts in how many of them the laser
 looked at that point (a *view*) and found something there (a *hit*).
 
-Ego-motion. The leg_tracker bags hold no odometry or tf, and the robot moves in ``negative_2``
-(~0.6 m/s, ~15°/s: 60-70 % of the beams change by > 5 cm from one scan to the next), so the
-scans are registered to each other (``ego_motion=True``): each scan is matched to the previous
-one by projective point-to-line ICP (Censi's PL-ICP idea in its simplest form, all numpy)::
+Ego-motion. When the caller knows the laser's pose at a scan's stamp (``update(..., pose=)``:
+the robot's odometry composed with the laser's mount, from wheel odometry or the
+laser_odometry service), the scan is placed there: no matching. Without it (the leg_tracker
+bags hold no odometry or tf, and the robot moves in ``negative_2``: ~0.6 m/s, ~15°/s, 60-70 %
+of the beams change by > 5 cm from one scan to the next) the scans are registered to each
+other (``ego_motion=True``): each scan is matched to the previous one by projective
+point-to-line ICP (Censi's PL-ICP idea in its simplest form, all numpy)::
 
     q_i  = R(θ) c_i + t                      current point i in the previous scan's frame
     j(i) = the beam of the previous scan nearest q_i among the ±w beams around q_i's bearing
@@ -18,9 +21,12 @@ one by projective point-to-line ICP (Censi's PL-ICP idea in its simplest form, a
     (Σ JᵀJ + λI) δ = −Σ Jᵀ e,  (t, θ) += δ   Gauss-Newton, 3 parameters, inliers |q − p| < d_max
 
 starting from a constant-velocity guess. Poses are chained into an odometry frame that starts at
-the stream's first scan. Too few inliers means the match failed: the history is cleared (a
-wrong pose would mark people static). ``ego_motion=False`` takes the laser as still (the
-history is then a per-beam range history in the laser frame).
+the stream's first scan -- or, once poses are given, into their frame: a scan without a pose
+between two with one is matched and chained onto the last pose (the frame of the history
+changes from the chained one to the given one only by a reset). Too few inliers means the
+match failed: the history is cleared (a wrong pose would mark people static).
+``ego_motion=False`` takes a scan without a pose as seen from where the previous one was (a
+still laser: the history is then a per-beam range history in the laser frame).
 
 Query. A point ``c`` of the newest scan is moved into the frame of each remembered scan ``i``
 (``p = T_i⁻¹ T_now c``, all scans and points at once); with ``ρ``, ``φ`` its range and bearing
@@ -94,14 +100,31 @@ class _Frame:
     on both sides; beams without a usable normal (and the pads) sit at ``_FAR``.
     """
 
-    __slots__ = ("n_normals", "ok", "r", "surf", "x", "y")
+    __slots__ = ("_n_normals", "_surf", "ok", "r", "x", "y")
 
     def __init__(self, r: np.ndarray, ok: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> None:
         self.r = np.where(ok, r, np.nan)
         self.ok = ok
-        self.x = x = np.where(ok, r * cos, 0.0)
-        self.y = y = np.where(ok, r * sin, 0.0)
-        n = r.shape[0]
+        self.x = np.where(ok, r * cos, 0.0)
+        self.y = np.where(ok, r * sin, 0.0)
+        self._surf: np.ndarray | None = None  # computed when first matched against
+        self._n_normals = 0
+
+    @property
+    def surf(self) -> np.ndarray:
+        if self._surf is None:
+            self._normals()
+        return self._surf
+
+    @property
+    def n_normals(self) -> int:
+        if self._surf is None:
+            self._normals()
+        return self._n_normals
+
+    def _normals(self) -> None:
+        x, y, ok = self.x, self.y, self.ok
+        n = x.shape[0]
         w = MATCH_WINDOW
         surf = np.full((4, n + 2 * w), _FAR)
         surf[2:] = 0.0
@@ -117,10 +140,8 @@ class _Frame:
             surf[1, sl] = np.where(good, y[1:-1], _FAR)
             surf[2, sl] = -ty / norm
             surf[3, sl] = tx / norm
-            self.n_normals = int(np.count_nonzero(good))
-        else:
-            self.n_normals = 0
-        self.surf = surf
+            self._n_normals = int(np.count_nonzero(good))
+        self._surf = surf
 
 
 def match_scans(
@@ -220,6 +241,8 @@ class StaticBackground:
         self.icp_stride = int(icp_stride)
         self.resets = 0
         """How many times the history was started again (for health notes and tests)."""
+        self.given_poses = 0
+        """Scans placed at a given pose, without matching (for health notes and tests)."""
         self._key: tuple | None = None
         self._clear()
 
@@ -234,6 +257,7 @@ class StaticBackground:
         self._ref_stamp: int | None = None  # the stamp of self._prev
         self._pose = np.zeros(3)
         self._velocity = np.zeros(3)  # last increment per ns (constant-velocity guess)
+        self._anchored = False  # the history's poses are in the given poses' frame
 
     def reset(self) -> None:
         """Forget everything (a new stream)."""
@@ -242,16 +266,19 @@ class StaticBackground:
 
     @property
     def pose(self) -> np.ndarray:
-        """(x, y, θ) of the last scan given to :meth:`update` in the odometry frame (which
-        starts afresh, at zero, with every new history: watch :attr:`resets`). Zero when the
-        laser is taken as still (``ego_motion=False``)."""
+        """(x, y, θ) of the last scan given to :meth:`update` in the odometry frame: that of
+        the given poses, else one that starts afresh, at zero, with every new history (watch
+        :attr:`resets`). Zero when the laser is taken as still (``ego_motion=False``, no
+        poses)."""
         return self._pose.copy()
 
     def update(
-        self, scan: LaserScan, x: np.ndarray, y: np.ndarray
+        self, scan: LaserScan, x: np.ndarray, y: np.ndarray, pose=None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Register ``scan`` and return (hits, views) of the points (x, y) in its frame, counted
-        over the remembered earlier scans; then remember ``scan``. Never raises on bad beams."""
+        over the remembered earlier scans; then remember ``scan``. ``pose``: the laser's
+        (x, y, θ) in an odometry frame at the scan's stamp, when known (then no matching).
+        Never raises on bad beams."""
         raw = np.asarray(scan.ranges_m(), dtype=np.float64)
         n = raw.shape[0]
         amin, inc = float(scan.angle_min_rad), float(scan.angle_increment_rad)
@@ -271,28 +298,54 @@ class StaticBackground:
         _, cos, sin = beam_geometry(amin, inc, n)
         frame = _Frame(np.where(ok, raw, 0.0), ok, cos[:n], sin[:n])
         still = False
-        if self._prev is not None and self.ego_motion and inc != 0.0:
-            dt = stamp - (self._ref_stamp or stamp)
-            guess = self._velocity * dt
-            # nothing moved since the scan last matched: no match needed (~300 us saved); that
-            # scan stays the one the next is matched to, so a slow drift is caught up later
-            still = self._still(frame, guess)
-            if still:
-                step, frac = np.zeros(3), 1.0
-            else:
-                step, frac = match_scans(
-                    self._prev, frame, amin, inc, guess, stride=self.icp_stride
-                )
-            if frac < self.min_inliers or not np.all(np.isfinite(step)):
-                self.resets += 1
-                self._clear()
-                self._key = key
-            else:
-                self._pose = _compose(self._pose, step)
-                self._velocity = step / dt if dt > 0 else np.zeros(3)
+        if pose is not None and all(math.isfinite(v) for v in pose):
+            self._given(np.array(pose, dtype=np.float64), stamp)
+            self.given_poses += 1
+        elif self._prev is not None and self.ego_motion and inc != 0.0:
+            still = self._match(frame, stamp, key)
         hits, views = self._query(np.asarray(x, np.float64), np.asarray(y, np.float64), stamp, scan)
         self._remember(frame, stamp, n, still)
         return hits, views
+
+    def _given(self, pose: np.ndarray, stamp: int) -> None:
+        """Place the scan at the given ``pose``. A history chained from a zero start (scans
+        without poses so far) is in another frame: it is started afresh."""
+        if not self._anchored and self._count:
+            self.resets += 1
+            key = self._key
+            self._clear()
+            self._key = key
+        if self._prev is not None and self._ref_stamp is not None and stamp > self._ref_stamp:
+            # the step from the last registered scan, for the constant-velocity guess of a
+            # later scan without a pose
+            c, s_ = math.cos(self._pose[2]), math.sin(self._pose[2])
+            dx, dy = pose[0] - self._pose[0], pose[1] - self._pose[1]
+            step = np.array([c * dx + s_ * dy, -s_ * dx + c * dy, pose[2] - self._pose[2]])
+            self._velocity = step / (stamp - self._ref_stamp)
+        self._pose = pose
+        self._anchored = True
+
+    def _match(self, frame: _Frame, stamp: int, key: tuple) -> bool:
+        """Register the scan on the last one by ICP (module docstring); True when the laser
+        was still and no match was needed. A failed match clears the history."""
+        dt = stamp - (self._ref_stamp or stamp)
+        guess = self._velocity * dt
+        # nothing moved since the scan last matched: no match needed (~300 us saved); that
+        # scan stays the one the next is matched to, so a slow drift is caught up later
+        still = self._still(frame, guess)
+        if still:
+            step, frac = np.zeros(3), 1.0
+        else:
+            amin, inc = key[1], key[2]
+            step, frac = match_scans(self._prev, frame, amin, inc, guess, stride=self.icp_stride)
+        if frac < self.min_inliers or not np.all(np.isfinite(step)):
+            self.resets += 1
+            self._clear()
+            self._key = key
+        else:
+            self._pose = _compose(self._pose, step)
+            self._velocity = step / dt if dt > 0 else np.zeros(3)
+        return still
 
     def _still(self, frame: _Frame, guess: np.ndarray) -> bool:
         """True when the laser was still at the last match (its guess moves it by less than

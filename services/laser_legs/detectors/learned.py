@@ -28,13 +28,15 @@ project whose recordings we evaluate on; our own feature set and code.
      training they raised the false persons; ``train.py``.)
 
 3. Optionally (``background_memory_s``), a segment on static background — seen occupied again
-   and again over the last seconds by the same laser, scans registered by ICP
-   (:mod:`..background`) — loses ``background_penalty`` of its vote share: furniture legs and
+   and again over the last seconds by the same laser, scans registered by the laser's
+   odometry pose when ``detect`` is given one (``pose``), else by ICP (:mod:`..background`) —
+   loses ``background_penalty`` of its vote share: furniture legs and
    clutter stay put, walking legs do not. The detector is then stateful: it expects the scans
    of one stream in order (a new size, frame, a stamp going back or a gap starts afresh).
 
 4. Optionally (``track_memory_s``), temporal confirmation (:class:`LegTracks`): short-lived
-   leg tracks in the registered frame of step 3 (the laser frame when the background is off)
+   leg tracks in the registered frame of step 3 (when the background is off: the odometry
+   frame of the given pose, else the laser frame)
    carry an evidence ``e``, a running mean of the scores of the segments they took up. A
    segment's score becomes ``w·s + (1 − w)·e`` with ``e`` the evidence of the track it
    continues (0 for a new track): a leg seen over several scans keeps its score, a blob that
@@ -69,7 +71,7 @@ from followbot.schemas import LaserScan, Leg, PersonCandidates
 from followbot.services.common.scan import beam_geometry, valid_mask
 
 from ..background import StaticBackground
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import candidates_message, person
 from ..pairing import pair_legs
 
@@ -177,7 +179,10 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     background_penalty: float = 0.3  # train.py, cross-validation (1: never a leg)
     background_min_views: int = 5  # a choice: ~0.7 s of a 7.5 Hz laser
     background_hit_m: float = 0.15  # a choice: leg radius + matching error
-    background_ego_motion: bool = True  # register scans (ICP); False: the laser is still
+    background_ego_motion: bool = True
+    """Scans that come without the laser's pose (no odometry at their stamp) are registered
+    to each other by ICP; False: such a scan is taken as seen from where the previous one
+    was (a still laser). A pose from odometry is used whenever the stage has one."""
     # temporal confirmation (LegTracks; not in the seeds): a segment's score becomes
     # track_weight * score + (1 - track_weight) * the evidence of the leg track it continues
     # (a running mean of its scores with time constant track_memory_s; 0 for a new track).
@@ -755,23 +760,27 @@ class RandomTreesLegDetector:
         if self.tracks is not None:
             self.tracks.reset()
 
-    def static_segments(self, scan: LaserScan, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
-        """Register ``scan`` with the background model; True for the segments (centroids
-        ``cx``, ``cy``) that lie on static background. All False when the model is off."""
+    def static_segments(
+        self, scan: LaserScan, cx: np.ndarray, cy: np.ndarray, pose: LaserPose = None
+    ) -> np.ndarray:
+        """Register ``scan`` with the background model (at ``pose`` when given, else by
+        matching); True for the segments (centroids ``cx``, ``cy``) that lie on static
+        background. All False when the model is off."""
         if self.background is None:
             return np.zeros(cx.shape[0], dtype=bool)
         s = self.settings
         resets = self.background.resets
-        hits, views = self.background.update(scan, cx, cy)
+        hits, views = self.background.update(scan, cx, cy, pose)
         if self.background.resets != resets and self.tracks is not None:
             self.tracks.reset()  # the registered frame restarts
         return StaticBackground.static_mask(
             hits, views, s.background_static_fraction, s.background_min_views
         )
 
-    def _pose(self) -> np.ndarray | None:
-        """The last scan's pose in the background's registered frame (None without it)."""
-        return None if self.background is None else self.background.pose
+    def _pose(self, given: LaserPose) -> np.ndarray | LaserPose:
+        """The last scan's pose in the background's registered frame; without the
+        background, the ``given`` pose (None: the laser frame)."""
+        return given if self.background is None else self.background.pose
 
     def check(self) -> None:
         """Load the model file now, so a missing or unreadable one is a ValueError naming it
@@ -804,7 +813,9 @@ class RandomTreesLegDetector:
             return np.zeros(0)
         return vote_share(self.model, features)
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         s = self.settings
         seg = segments(
             scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
@@ -813,16 +824,16 @@ class RandomTreesLegDetector:
         if starts.shape[0] == 0:
             z = np.zeros(0)
             if self.background is not None:  # the background and the tracks see every scan
-                self.static_segments(scan, z, z)
+                self.static_segments(scan, z, z, pose)
             if self.tracks is not None:
-                self.tracks.update(scan, z, z, z, self._pose())
+                self.tracks.update(scan, z, z, z, self._pose(pose))
             return candidates_message(scan, self.name, [])
         feats, cx, cy = features_and_centroids(seg)
         score = self.leg_scores(feats)
         if self.background is not None:
-            score = score - s.background_penalty * self.static_segments(scan, cx, cy)
+            score = score - s.background_penalty * self.static_segments(scan, cx, cy, pose)
         if self.tracks is not None:
-            score = self.tracks.update(scan, cx, cy, score, self._pose())
+            score = self.tracks.update(scan, cx, cy, score, self._pose(pose))
         if prediction is not None:
             px, py = float(prediction[0]), float(prediction[1])
             if math.isfinite(px) and math.isfinite(py):
