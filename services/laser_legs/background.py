@@ -91,6 +91,8 @@ STILL_FRACTION = 0.05
 MATCH_WINDOW = 3
 #: Coordinates given to beams without a usable surface normal: never the nearest.
 _FAR = 1.0e6
+#: Offsets of the beams before, at and after a beam on the padded range rows.
+_WINDOW = np.arange(3)
 
 
 class _Frame:
@@ -100,15 +102,30 @@ class _Frame:
     on both sides; beams without a usable normal (and the pads) sit at ``_FAR``.
     """
 
-    __slots__ = ("_n_normals", "_surf", "ok", "r", "x", "y")
+    __slots__ = ("_cos", "_n_normals", "_sin", "_surf", "_xy", "ok", "r")
 
     def __init__(self, r: np.ndarray, ok: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> None:
         self.r = np.where(ok, r, np.nan)
         self.ok = ok
-        self.x = np.where(ok, r * cos, 0.0)
-        self.y = np.where(ok, r * sin, 0.0)
-        self._surf: np.ndarray | None = None  # computed when first matched against
+        self._cos, self._sin = cos, sin
+        # points and normals are computed when the frame is first matched (or matched against)
+        self._xy: tuple[np.ndarray, np.ndarray] | None = None
+        self._surf: np.ndarray | None = None
         self._n_normals = 0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._points()[0]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self._points()[1]
+
+    def _points(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._xy is None:
+            ok, r = self.ok, self.r
+            self._xy = (np.where(ok, r * self._cos, 0.0), np.where(ok, r * self._sin, 0.0))
+        return self._xy
 
     @property
     def surf(self) -> np.ndarray:
@@ -123,7 +140,7 @@ class _Frame:
         return self._n_normals
 
     def _normals(self) -> None:
-        x, y, ok = self.x, self.y, self.ok
+        (x, y), ok = self._points(), self.ok
         n = x.shape[0]
         w = MATCH_WINDOW
         surf = np.full((4, n + 2 * w), _FAR)
@@ -247,8 +264,10 @@ class StaticBackground:
         self._clear()
 
     def _clear(self) -> None:
-        self._ranges: np.ndarray | None = None  # (max_scans, n), NaN where no return
+        # (max_scans, n + 2): the ranges of beam -1 .. n, NaN where no return (and on the pads)
+        self._ranges: np.ndarray | None = None
         self._poses = np.zeros((self.max_scans, 3))
+        self._rot = np.zeros((self.max_scans, 2))  # cos, -sin of each pose's heading
         self._stamps = np.zeros(self.max_scans, dtype=np.int64)
         self._count = 0
         self._head = 0  # next slot of the ring
@@ -296,7 +315,7 @@ class StaticBackground:
             self._clear()
         ok = valid_mask(raw, scan.range_min_m, scan.range_max_m) & np.isfinite(raw)
         _, cos, sin = beam_geometry(amin, inc, n)
-        frame = _Frame(np.where(ok, raw, 0.0), ok, cos[:n], sin[:n])
+        frame = _Frame(raw, ok, cos[:n], sin[:n])
         still = False
         if pose is not None and all(math.isfinite(v) for v in pose):
             self._given(np.array(pose, dtype=np.float64), stamp)
@@ -366,13 +385,14 @@ class StaticBackground:
             self._ref_stamp = stamp
         self._prev_stamp = stamp
         if self._ranges is None:
-            self._ranges = np.full((self.max_scans, n), np.nan)
+            self._ranges = np.full((self.max_scans, n + 2), np.nan)
         if self._count:  # thin a fast scanner's scans to memory / max_scans apart
             last = self._stamps[(self._head - 1) % self.max_scans]
             if stamp - last < self.memory_ns // self.max_scans:
                 return
-        self._ranges[self._head] = frame.r
+        self._ranges[self._head, 1:-1] = frame.r
         self._poses[self._head] = self._pose
+        self._rot[self._head] = math.cos(self._pose[2]), -math.sin(self._pose[2])
         self._stamps[self._head] = stamp
         self._head = (self._head + 1) % self.max_scans
         self._count = min(self._count + 1, self.max_scans)
@@ -380,39 +400,43 @@ class StaticBackground:
     def _query(self, x: np.ndarray, y: np.ndarray, stamp: int, scan: LaserScan):
         k = x.shape[0]
         zero = np.zeros(k, dtype=np.intp)
-        if self._count == 0 or k == 0 or self._ranges is None:
+        m = self._count
+        if m == 0 or k == 0 or self._ranges is None:
             return zero, zero
-        slots = np.flatnonzero(self._stamps[: self._count] >= stamp - self.memory_ns)
-        if slots.shape[0] == 0:
-            return zero, zero
-        R = self._ranges[slots]  # (m, n)
-        P = self._poses[slots]  # (m, 3)
-        n = R.shape[1]
-        finite = np.isfinite(x) & np.isfinite(y)  # a non-finite point is never background
+        recent = self._stamps[:m] >= stamp - self.memory_ns
+        if recent.all():  # (the usual case: no copies)
+            R, P, rot = self._ranges[:m], self._poses[:m], self._rot[:m]
+        else:
+            slots = np.flatnonzero(recent)
+            if slots.shape[0] == 0:
+                return zero, zero
+            R, P, rot = self._ranges[slots], self._poses[slots], self._rot[slots]
+        n = R.shape[1] - 2
+        finite = np.isfinite(x + y)  # a non-finite point is never background
         if not finite.all():
             x, y = np.where(finite, x, 0.0), np.where(finite, y, 0.0)
         c, s = math.cos(self._pose[2]), math.sin(self._pose[2])
         wx = c * x - s * y + self._pose[0]  # the points in the odometry frame
         wy = s * x + c * y + self._pose[1]
-        ci, si = np.cos(P[:, 2])[:, None], np.sin(P[:, 2])[:, None]
-        dx = wx[None, :] - P[:, 0:1]
-        dy = wy[None, :] - P[:, 1:2]
-        lx = ci * dx + si * dy  # ... in each remembered scan's frame (m, k)
-        ly = -si * dx + ci * dy
+        ci, nsi = rot[:, 0:1], rot[:, 1:2]
+        dx = wx - P[:, 0:1]
+        dy = wy - P[:, 1:2]
+        lx = ci * dx - nsi * dy  # ... in each remembered scan's frame (m, k)
+        ly = nsi * dx + ci * dy
         rho = np.hypot(lx, ly)
         b = _beam_index(
             np.arctan2(ly, lx), float(scan.angle_min_rad), float(scan.angle_increment_rad), n
         )
         seen = (b >= 0) & (rho >= scan.range_min_m) & (rho <= scan.range_max_m)
-        rows = np.arange(R.shape[0])[:, None, None]
-        bw = np.clip(b[:, :, None] + np.array([-1, 0, 1]), 0, n - 1)
-        r = R[rows, bw]  # (m, k, 3), NaN where no return
+        # the beams b - 1, b, b + 1 of each remembered scan: b .. b + 2 on the padded rows
+        b += np.arange(R.shape[0])[:, None] * (n + 2)
+        r = R.reshape(-1).take(b[:, :, None] + _WINDOW)  # (m, k, 3), NaN where no return
         with np.errstate(invalid="ignore"):
             near = np.abs(r - rho[:, :, None]) <= self.hit_m
             hit = seen & near.any(axis=2)
             free = seen & ~hit & (r[:, :, 1] > rho + self.hit_m)
-        hits = np.count_nonzero(hit, axis=0) * finite
-        return hits, hits + np.count_nonzero(free, axis=0) * finite
+        hits = hit.sum(axis=0) * finite
+        return hits, hits + free.sum(axis=0) * finite
 
     @staticmethod
     def static_mask(

@@ -305,7 +305,9 @@ def segments(
     else:  # rotate so that the arrays start just after a cut
         shift = int((~join).nonzero()[0][0]) + 1
         if shift < m:
-            beam, x, y, r, join = (np.roll(a, -shift) for a in (beam, x, y, r, join))
+            order = np.arange(shift, shift + m)  # a rotation by shift (one take per array)
+            order[m - shift :] -= m
+            beam, x, y, r, join = (a.take(order) for a in (beam, x, y, r, join))
     cut = (~join).nonzero()[0]  # the last point of each segment
     ends = cut
     starts = np.empty_like(cut)
@@ -680,50 +682,72 @@ class LegTracks:
         a = math.exp(-dt / self.memory_s)
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
-        if pose is not None and np.all(np.isfinite(pose)):
-            c, s_ = math.cos(float(pose[2])), math.sin(float(pose[2]))
-            x, y = c * x - s_ * y + float(pose[0]), s_ * x + c * y + float(pose[1])
-        ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y) & np.isfinite(score))
-        tx, ty, tvx, tvy, te = self._t
-        px, py = (tx + tvx * dt, ty + tvy * dt) if self.velocity else (tx, ty)
-        track = np.full(score.shape[0], -1, dtype=np.intp)  # the track each segment continues
-        if ok.shape[0] and tx.shape[0]:
-            d = np.hypot(x[ok, None] - px, y[ok, None] - py)
-            si, tj = np.nonzero(d <= self.gate_m)
-            taken_s: set[int] = set()
-            taken_t: set[int] = set()
-            for f in np.argsort(d[si, tj], kind="stable").tolist():  # closest pairs first
-                i, j = int(si[f]), int(tj[f])
-                if i not in taken_s and j not in taken_t:
-                    taken_s.add(i)
-                    taken_t.add(j)
-                    track[ok[i]] = j
+        if pose is not None:
+            p0, p1, p2 = (float(v) for v in pose)
+            if math.isfinite(p0) and math.isfinite(p1) and math.isfinite(p2):
+                c, s_ = math.cos(p2), math.sin(p2)
+                x, y = c * x - s_ * y + p0, s_ * x + c * y + p1
+        finite = np.isfinite(score)
+        usable = finite & np.isfinite(x) & np.isfinite(y)
+        track = self._associate(x, y, usable, dt)  # the track each segment continues, or -1
         hit = np.flatnonzero(track >= 0)
         j = track[hit]
+        t = self._t
         prior = np.zeros(score.shape[0])
-        prior[hit] = te[j]
+        prior[hit] = t[4, j]
         out = self.weight * score + (1.0 - self.weight) * prior  # out_i = w s_i + (1 − w) e_j(i)
-        out[~np.isfinite(score)] = score[~np.isfinite(score)]
-        # the tracks after this scan
-        t = self._t.copy()
-        t[4] *= a  # a missed track: a e_j
-        t[4, j] += (1.0 - a) * score[hit]  # e_j ← a e_j + (1 − a) s_i
+        if not finite.all():
+            out[~finite] = score[~finite]
+        # the tracks after this scan (in place: self._t is replaced below)
+        e = t[4]
+        e *= a  # a missed track: a e_j
+        e[j] += (1.0 - a) * score[hit]  # e_j ← a e_j + (1 − a) s_i
         if dt > 0:
-            t[2, j] = 0.5 * tvx[j] + 0.5 * (x[hit] - tx[j]) / dt
-            t[3, j] = 0.5 * tvy[j] + 0.5 * (y[hit] - ty[j]) / dt
+            t[2, j] = 0.5 * t[2, j] + 0.5 * (x[hit] - t[0, j]) / dt
+            t[3, j] = 0.5 * t[3, j] + 0.5 * (y[hit] - t[1, j]) / dt
         t[0, j], t[1, j] = x[hit], y[hit]
-        keep = t[4] >= 0.01
+        keep = e >= 0.01
         keep[j] = True
-        new = np.setdiff1d(ok, hit, assume_unique=True)
-        born = np.zeros((5, new.shape[0]))
-        born[0], born[1] = x[new], y[new]
-        born[4] = (1.0 - a) * score[new]
-        t = np.concatenate([t[:, keep], born], axis=1)
-        t[4] = np.clip(t[4], 0.0, 1.0)
+        new = np.flatnonzero(usable & (track < 0))
+        if new.shape[0]:
+            born = np.zeros((5, new.shape[0]))
+            born[0], born[1] = x[new], y[new]
+            born[4] = (1.0 - a) * score[new]
+            t = np.concatenate([t[:, keep], born], axis=1)
+        elif not keep.all():
+            t = t[:, keep]
+        e = t[4]
+        np.minimum(np.maximum(e, 0.0, out=e), 1.0, out=e)
         if t.shape[1] > self.max_tracks:
-            t = t[:, np.argsort(-t[4], kind="stable")[: self.max_tracks]]
+            t = t[:, np.argsort(-e, kind="stable")[: self.max_tracks]]
         self._t = t
         return out
+
+    def _associate(self, x: np.ndarray, y: np.ndarray, usable: np.ndarray, dt: float):
+        """Greedy nearest pairs of segments (``usable`` ones) and predicted tracks within
+        ``gate_m``, closest first, each once: the track index of each segment, -1 for none."""
+        track = np.full(x.shape[0], -1, dtype=np.intp)
+        t = self._t
+        if t.shape[1] == 0:
+            return track
+        ok = np.flatnonzero(usable)
+        if ok.shape[0] == 0:
+            return track
+        px, py = (t[0] + t[2] * dt, t[1] + t[3] * dt) if self.velocity else (t[0], t[1])
+        d = np.hypot(x[ok, None] - px, y[ok, None] - py)
+        si, tj = np.nonzero(d <= self.gate_m)
+        if si.shape[0] == 0:
+            return track
+        sl, tl, okl = si.tolist(), tj.tolist(), ok.tolist()
+        taken_s: set[int] = set()
+        taken_t: set[int] = set()
+        for f in np.argsort(d[si, tj], kind="stable").tolist():  # closest pairs first
+            i, jj = sl[f], tl[f]
+            if i not in taken_s and jj not in taken_t:
+                taken_s.add(i)
+                taken_t.add(jj)
+                track[okl[i]] = jj
+        return track
 
 
 class RandomTreesLegDetector:
