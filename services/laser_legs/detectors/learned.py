@@ -334,7 +334,11 @@ def segment_features(seg: Segments) -> np.ndarray:
 
 
 def features_and_centroids(seg: Segments):
-    """Features and centroids (cx, cy) of the segments."""
+    """Features and centroids (cx, cy) of the segments.
+
+    Every per-point quantity is one row of a stacked array and the segments' sums are one
+    ``np.add.reduceat`` over the segments' (contiguous) points: the cost is a fixed number of
+    numpy calls whatever the number of segments."""
     starts, ends, x, y, r = seg.starts, seg.ends, seg.x, seg.y, seg.r
     k = int(starts.shape[0])
     if k == 0:
@@ -343,19 +347,18 @@ def features_and_centroids(seg: Segments):
     p = _gather(starts, ends, x, y)
     m = _moments(p)
     line_res, axis_ratio = _line_fit(m)
-    radius, circ_res = _circle_fit(p, m, line_res)
-    blen, breg = _boundary(x, y, starts, ends, p.fc)
-    width, ia_mean, ia_std = _chord_and_angles(p, x, y, starts, ends)
-    depth, depth_max = _chord_depth(p, x, y, starts, ends, width)
-    rng = np.hypot(m.cx, m.cy)
     ax, ay, ex, ey = x[starts], y[starts], x[ends], y[ends]
+    wx, wy = ex - ax, ey - ay
+    width = np.hypot(wx, wy)
+    radius, circ_res, depth, depth_max, ia_mean, ia_std = _shape_sums(p, m, line_res, width)
+    rng = np.hypot(m.cx, m.cy)
     # the arc the beams sweep at that range: the angle between the end points' bearings
     # ((points - 1) x the beam spacing on a run without dropouts)
     sweep = np.abs(np.arctan2(ax * ey - ay * ex, ax * ex + ay * ey))
     obliq = np.minimum(width / np.maximum(sweep * rng, 1e-6), OBLIQUENESS_CAP)
     step_min, step_max = _background_steps(r, seg.outer, starts, ends)
     cols = [p.fc, width, rng, np.sqrt(m.tr), m.mean_spread, line_res, axis_ratio, radius, circ_res]
-    cols += [blen, breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
+    cols += [m.blen, m.breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
     partner_shape = np.array([circ_res, line_res, radius, depth, step_max, rng])
     cols += _context(m.cx, m.cy, width, p.fc, partner_shape)
     return _rows(cols, k), m.cx, m.cy
@@ -371,8 +374,8 @@ class _Points(NamedTuple):
     """Segment index of each point."""
     first: np.ndarray
     """(k,) offset of each segment's first point in the gathered arrays."""
-    idx: np.ndarray
-    """Beam index of each point."""
+    last: np.ndarray
+    """(k,) offset of each segment's last point."""
     px: np.ndarray
     py: np.ndarray
 
@@ -381,21 +384,20 @@ def _gather(starts, ends, x, y) -> _Points:
     k = int(starts.shape[0])
     cnt = ends - starts + 1
     cid = np.repeat(np.arange(k), cnt)
-    first = np.cumsum(cnt) - cnt
-    idx = np.arange(cid.shape[0]) - first[cid] + starts[cid]
-    return _Points(k, cnt.astype(np.float64), cid, first, idx, x[idx], y[idx])
+    last = np.cumsum(cnt) - 1
+    first = last - cnt + 1
+    idx = np.arange(cid.shape[0]) + (starts - first)[cid]  # the points' indices in x, y
+    return _Points(k, cnt.astype(np.float64), cid, first, last, x[idx], y[idx])
 
 
 class _Moments(NamedTuple):
-    """Centroids, the points about them, and the segments' second moments."""
+    """Centroids, the points about them, and per-segment sums."""
 
     cx: np.ndarray
     cy: np.ndarray
     u: np.ndarray
     """Per point: x about its segment's centroid."""
     v: np.ndarray
-    zz: np.ndarray
-    """Per point: u^2 + v^2."""
     suu: np.ndarray
     svv: np.ndarray
     suv: np.ndarray
@@ -405,23 +407,44 @@ class _Moments(NamedTuple):
     """Trace of the scatter matrix [suu suv; suv svv] (the mean squared spread)."""
     det: np.ndarray
     """Its determinant."""
+    bu: np.ndarray
+    bv: np.ndarray
+    """Half the means of u (u^2 + v^2) and v (u^2 + v^2) (the circle fit's right-hand side)."""
+    blen: np.ndarray
+    """Boundary length: the sum of the point-to-point steps."""
+    breg: np.ndarray
+    """Boundary regularity: the standard deviation of the steps."""
 
 
 def _moments(p: _Points) -> _Moments:
-    k, cid, fc = p.k, p.cid, p.fc
-    cx = np.bincount(cid, p.px, k) / fc
-    cy = np.bincount(cid, p.py, k) / fc
+    fc, cid, first = p.fc, p.cid, p.first
+    c = np.add.reduceat(np.stack([p.px, p.py]), first, axis=1) / fc
+    cx, cy = c[0], c[1]
     u = p.px - cx[cid]
     v = p.py - cy[cid]
-    uu, vv = u * u, v * v
-    suu = np.bincount(cid, uu, k) / fc
-    svv = np.bincount(cid, vv, k) / fc
-    suv = np.bincount(cid, u * v, k) / fc
+    q = np.empty((8, u.shape[0]))
+    uu, vv = np.multiply(u, u, out=q[0]), np.multiply(v, v, out=q[1])
+    np.multiply(u, v, out=q[2])
     zz = uu + vv
-    mean_spread = np.bincount(cid, np.sqrt(zz), k) / fc
+    np.sqrt(zz, out=q[3])
+    np.multiply(u, zz, out=q[4])
+    np.multiply(v, zz, out=q[5])
+    # the steps from each point to the next in its segment (0 into a segment's first point)
+    step2 = q[7]
+    step2[0] = 0.0
+    np.add(np.square(p.px[1:] - p.px[:-1]), np.square(p.py[1:] - p.py[:-1]), out=step2[1:])
+    step2[first] = 0.0
+    np.sqrt(step2, out=q[6])
+    sums = np.add.reduceat(q, first, axis=1)
+    suu, svv, suv, spread = sums[:4] / fc
+    bu, bv = 0.5 * sums[4:6] / fc
+    nstep = fc - 1.0
+    blen = sums[6]
+    bmean = blen / nstep
+    breg = np.sqrt(np.maximum(sums[7] / nstep - bmean * bmean, 0.0))
     tr = suu + svv
     det = suu * svv - suv * suv
-    return _Moments(cx, cy, u, v, zz, suu, svv, suv, mean_spread, tr, det)
+    return _Moments(cx, cy, u, v, suu, svv, suv, spread, tr, det, bu, bv, blen, breg)
 
 
 def _line_fit(m: _Moments) -> tuple[np.ndarray, np.ndarray]:
@@ -434,73 +457,50 @@ def _line_fit(m: _Moments) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(lam2), np.sqrt(lam2 / np.maximum(lam1, 1e-12))
 
 
-def _circle_fit(p: _Points, m: _Moments, line_res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(radius, RMS residual) of each segment's Kasa circle fit; a straight segment (singular
-    system or radius over RADIUS_CAP_M) gets the cap and its line-fit residual."""
-    k, cid, fc = p.k, p.cid, p.fc
-    suu, svv, suv, u, v, zz, det = m.suu, m.svv, m.suv, m.u, m.v, m.zz, m.det
-    # on centred points: [suu suv; suv svv] (uc, vc) = 0.5 (m(u zz), m(v zz)),
-    # r^2 = uc^2 + vc^2 + suu + svv
-    bu = 0.5 * np.bincount(cid, u * zz, k) / fc
-    bv = 0.5 * np.bincount(cid, v * zz, k) / fc
+def _shape_sums(p: _Points, m: _Moments, line_res: np.ndarray, width: np.ndarray):
+    """(circle radius, circle residual, chord depth mean and largest, inscribed angles mean
+    and std) of each segment, from one ``reduceat`` over the points.
+
+    * Kasa circle fit on the centred points: [suu suv; suv svv] (uc, vc) = (bu, bv),
+      r^2 = uc^2 + vc^2 + suu + svv; a straight segment (singular system or radius over
+      RADIUS_CAP_M) gets the cap and its line-fit residual;
+    * chord depth: distance of the points from the chord A-B (A, B the end points), positive
+      on the laser's side;
+    * inscribed angles APB of the interior points P."""
+    fc, cid, first, last, px, py = p.fc, p.cid, p.first, p.last, p.px, p.py
+    det = m.det
     ok = det > 1e-14
     sdet = np.where(ok, det, 1.0)
-    uc = np.where(ok, (bu * svv - bv * suv) / sdet, 0.0)
-    vc = np.where(ok, (bv * suu - bu * suv) / sdet, 0.0)
+    uc = np.where(ok, (m.bu * m.svv - m.bv * m.suv) / sdet, 0.0)
+    vc = np.where(ok, (m.bv * m.suu - m.bu * m.suv) / sdet, 0.0)
     radius = np.sqrt(uc * uc + vc * vc + m.tr)
     straight = ~ok | (radius > RADIUS_CAP_M)
     radius[straight] = RADIUS_CAP_M
-    e = np.sqrt((u - uc[cid]) ** 2 + (v - vc[cid]) ** 2) - radius[cid]
-    circ_res = np.sqrt(np.bincount(cid, e * e, k) / fc)
-    return radius, np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
-
-
-def _boundary(x, y, starts, ends, fc) -> tuple[np.ndarray, np.ndarray]:
-    """(length, regularity: std of the steps) of each segment's chain of points, from one
-    cumulative sum of the point-to-point steps over the scan."""
-    sx = x[1:] - x[:-1]
-    sy = y[1:] - y[:-1]
-    s2 = sx * sx + sy * sy
-    cs = np.zeros((2, s2.shape[0] + 1))
-    np.cumsum(np.sqrt(s2), out=cs[0, 1:])
-    np.cumsum(s2, out=cs[1, 1:])
-    nstep = fc - 1.0
-    blen = cs[0, ends] - cs[0, starts]
-    bmean = blen / nstep
-    breg = np.sqrt(np.maximum((cs[1, ends] - cs[1, starts]) / nstep - bmean * bmean, 0.0))
-    return blen, breg
-
-
-def _chord_and_angles(p: _Points, x, y, starts, ends) -> tuple[np.ndarray, ...]:
-    """(width A-B, mean and std of the inscribed angles APB) of each segment, with A and B its
-    end points and P its interior points."""
-    k, cid = p.k, p.cid
-    ax, ay = x[starts], y[starts]
-    wx, wy = x[ends] - ax, y[ends] - ay
-    width = np.hypot(wx, wy)
-    inner = (p.idx != starts[cid]) & (p.idx != ends[cid])
-    icid = cid[inner]
-    qx, qy = p.px[inner], p.py[inner]
-    pax, pay = ax[icid] - qx, ay[icid] - qy
-    pbx, pby = pax + wx[icid], pay + wy[icid]
-    ang = np.abs(np.arctan2(pax * pby - pay * pbx, pax * pbx + pay * pby))
-    n_inner = np.maximum(p.fc - 2.0, 1.0)
-    ia_mean = np.bincount(icid, ang, k) / n_inner
-    ia_std = np.sqrt(np.maximum(np.bincount(icid, ang * ang, k) / n_inner - ia_mean**2, 0.0))
-    return width, ia_mean, ia_std
-
-
-def _chord_depth(p: _Points, x, y, starts, ends, width) -> tuple[np.ndarray, np.ndarray]:
-    """(mean, largest) distance of each segment's points from its chord, positive on the
-    laser's side."""
-    ax, ay = x[starts], y[starts]
-    wx, wy = x[ends] - ax, y[ends] - ay
-    cid = p.cid
+    ax, ay = px[first], py[first]
+    wx, wy = px[last] - ax, py[last] - ay
     wn = np.maximum(width, 1e-9)
     nx, ny = -wy / wn, wx / wn
     nx, ny = np.where(nx * ax + ny * ay > 0, (-nx, -ny), (nx, ny))  # normal towards the laser
-    dep = nx[cid] * (p.px - ax[cid]) + ny[cid] * (p.py - ay[cid])
-    return np.bincount(cid, dep, p.k) / p.fc, np.maximum.reduceat(dep, p.first)
+    q = np.empty((4, px.shape[0]))
+    e = np.hypot(m.u - uc[cid], m.v - vc[cid]) - radius[cid]
+    np.multiply(e, e, out=q[0])
+    pax, pay = ax[cid] - px, ay[cid] - py  # P -> A
+    dep = np.multiply(nx[cid], -pax, out=q[1])
+    dep -= ny[cid] * pay
+    pbx, pby = pax + wx[cid], pay + wy[cid]  # P -> B
+    ang = np.arctan2(pax * pby - pay * pbx, pax * pbx + pay * pby, out=q[2])
+    np.abs(ang, out=ang)
+    ang[first] = 0.0  # only the interior points
+    ang[last] = 0.0
+    np.multiply(ang, ang, out=q[3])
+    sums = np.add.reduceat(q, first, axis=1)
+    circ_res = np.sqrt(sums[0] / fc)
+    circ_res = np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
+    n_inner = np.maximum(fc - 2.0, 1.0)
+    ia_mean = sums[2] / n_inner
+    ia_std = np.sqrt(np.maximum(sums[3] / n_inner - ia_mean**2, 0.0))
+    depth_max = np.maximum.reduceat(q[1], first)
+    return radius, circ_res, sums[1] / fc, depth_max, ia_mean, ia_std
 
 
 def _background_steps(r, outer, starts, ends) -> tuple[np.ndarray, np.ndarray]:
@@ -531,8 +531,8 @@ def _context(cx, cy, width, fc, partner_shape: np.ndarray) -> list:
         np.minimum(nd, CONTEXT_CAP_M),
         np.where(near, width[j], 0.0),
         np.where(near, fc[j], 0.0),
-        np.count_nonzero(dd < 1.0, axis=1),
-        np.count_nonzero(dd < PARTNER_M, axis=1),
+        (dd < 1.0).sum(axis=1),
+        (dd < PARTNER_M).sum(axis=1),
     ]
     shape = partner_shape[:, j]
     shape[5] -= partner_shape[5]
