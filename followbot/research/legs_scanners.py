@@ -8,6 +8,10 @@ followbot.research.legs_scanners --detectors learned thesis``.
 * CARMEN (``carmen/*.log.gz``): eight office runs, 180 deg at 0.5 or 1 deg, robot moving, nobody
   walking: every candidate is false (the data's README). False candidates per scan, per log and
   pooled over all the scans;
+* ``--odometry``: the CARMEN scans are given to the detectors with the laser's pose from the
+  logs' odometry (each laser record's own odometry composed with the laser's mount from
+  ROBOTLASER records, else the base's origin), as the laser_legs node gives it from
+  ``sensors/odom``: ``learned`` then registers its background by odometry instead of ICP;
 * ``--train-split``: the leg_tracker training split (positive_1..4, negative_2 ``/left_scan``),
   for choices made without the held-out split (the shipped forest was fitted on these scans, so
   its recall there is in-sample).
@@ -41,6 +45,7 @@ from followbot.research.realdata import (
     to_laser_scan,
 )
 from followbot.schemas import LaserScan
+from followbot.services.common.geometry import Pose
 from followbot.services.laser_legs.detectors import make_detector
 from followbot.services.laser_legs.self_filter import SelfFilteredDetector
 
@@ -72,12 +77,28 @@ def read_legs360(folder: Path) -> list[LabelledScan]:
     return out
 
 
-def read_carmen(path: Path) -> list[LaserScan]:
+def read_carmen(path: Path, odometry: bool = False) -> list[tuple[LaserScan, Pose | None]]:
+    """The log's scans, each with the laser's odometry pose (``odometry``) or None."""
+    import math
+
     from followbot.carmen import CarmenLog
 
     log = CarmenLog(path)
     source = next(s for s in ("ROBOTLASER1", "FLASER", "RAWLASER1") if s in log.contents)
-    return [m for _, _, m in log.messages([source])]
+    if not odometry or f"{source}/odom" not in log.contents:
+        return [(m, None) for _, _, m in log.messages([source])]
+    mx, my, myaw = log.laser_mount(source) or (0.0, 0.0, 0.0)
+    out, odom = [], None
+    for _, src, m in log.messages([source, f"{source}/odom"]):
+        if src != source:  # a laser record's odometry comes just before its scan
+            odom = m
+            continue
+        pose = None
+        if odom is not None and odom.stamp_ns == m.stamp_ns:
+            c, s = math.cos(odom.yaw_rad), math.sin(odom.yaw_rad)
+            pose = (odom.x_m + c * mx - s * my, odom.y_m + s * mx + c * my, odom.yaw_rad + myaw)
+        out.append((m, pose))
+    return out
 
 
 def build(name: str, overrides: dict | None):
@@ -115,12 +136,12 @@ def legs360_figures(det, scans: Sequence[LabelledScan]) -> dict:
     }
 
 
-def carmen_figures(det, logs: dict[str, list[LaserScan]]) -> dict:
+def carmen_figures(det, logs: dict[str, list[tuple[LaserScan, Pose | None]]]) -> dict:
     out: dict = {}
     total = scans = 0
     for name, stream in logs.items():
         det.reset()
-        n = sum(len(det.detect(s).candidates) for s in stream)
+        n = sum(len(det.detect(s, None, pose).candidates) for s, pose in stream)
         out[name] = round(n / max(len(stream), 1), 3)
         total += n
         scans += len(stream)
@@ -143,6 +164,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data", type=Path, default=None)
     p.add_argument("--train-split", action="store_true")
     p.add_argument("--no-carmen", action="store_true")
+    p.add_argument(
+        "--odometry", action="store_true", help="CARMEN scans with the laser's odometry pose"
+    )
     args = p.parse_args(argv)
     root = args.data or data_root()
     overrides = json.loads(args.set)
@@ -150,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     logs = {}
     if not args.no_carmen:
         for path in sorted((root / "carmen").glob("*.log.gz")):
-            logs[path.name.split("-")[0]] = read_carmen(path)
+            logs[path.name.split("-")[0]] = read_carmen(path, args.odometry)
     if args.train_split:
         tpos = [s for n in TRAIN_POSITIVES for s in read_positive(n)]
         tneg = [s for t in TRAIN_NEGATIVE_TOPICS for s in read_negative(t)]

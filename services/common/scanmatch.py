@@ -60,10 +60,11 @@ class ScanFrame:
     ``surf`` is (4, n + 2w): x, y, normal x, normal y, padded with ``w = MATCH_WINDOW`` beams
     on both sides; beams without a usable normal (and the pads) sit at ``_FAR``. A beam has a
     normal when both neighbours have returns at most ``max_chord_m`` apart (a sparse scanner's
-    distant walls need more than the default).
+    distant walls need more than the default). Points and normals are computed when the frame
+    is first matched (or matched against): a scan placed by a given pose never needs them.
     """
 
-    __slots__ = ("n_normals", "ok", "r", "surf", "x", "y")
+    __slots__ = ("_cos", "_max_chord_m", "_n_normals", "_sin", "_surf", "_xy", "ok", "r")
 
     def __init__(
         self,
@@ -75,9 +76,41 @@ class ScanFrame:
     ) -> None:
         self.r = np.where(ok, r, np.nan)
         self.ok = ok
-        self.x = x = np.where(ok, r * cos, 0.0)
-        self.y = y = np.where(ok, r * sin, 0.0)
-        n = r.shape[0]
+        self._cos, self._sin = cos, sin
+        self._max_chord_m = max_chord_m
+        self._xy: tuple[np.ndarray, np.ndarray] | None = None
+        self._surf: np.ndarray | None = None
+        self._n_normals = 0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._points()[0]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self._points()[1]
+
+    def _points(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._xy is None:
+            ok, r = self.ok, self.r
+            self._xy = (np.where(ok, r * self._cos, 0.0), np.where(ok, r * self._sin, 0.0))
+        return self._xy
+
+    @property
+    def surf(self) -> np.ndarray:
+        if self._surf is None:
+            self._normals()
+        return self._surf
+
+    @property
+    def n_normals(self) -> int:
+        if self._surf is None:
+            self._normals()
+        return self._n_normals
+
+    def _normals(self) -> None:
+        (x, y), ok = self._points(), self.ok
+        n = x.shape[0]
         w = MATCH_WINDOW
         surf = np.full((4, n + 2 * w), _FAR)
         surf[2:] = 0.0
@@ -87,17 +120,16 @@ class ScanFrame:
             tx = x[2:] - x[:-2]
             ty = y[2:] - y[:-2]
             t2 = tx * tx + ty * ty
-            good = ok[2:] & ok[:-2] & ok[1:-1] & (t2 > 1e-8) & (t2 < max_chord_m * max_chord_m)
+            chord2 = self._max_chord_m * self._max_chord_m
+            good = ok[2:] & ok[:-2] & ok[1:-1] & (t2 > 1e-8) & (t2 < chord2)
             norm = np.sqrt(np.where(good, t2, 1.0))
             sl = slice(w + 1, w + n - 1)
             surf[0, sl] = np.where(good, x[1:-1], _FAR)
             surf[1, sl] = np.where(good, y[1:-1], _FAR)
             surf[2, sl] = -ty / norm
             surf[3, sl] = tx / norm
-            self.n_normals = int(np.count_nonzero(good))
-        else:
-            self.n_normals = 0
-        self.surf = surf
+            self._n_normals = int(np.count_nonzero(good))
+        self._surf = surf
 
 
 def match_scans(

@@ -13,10 +13,16 @@ from typing import Protocol, runtime_checkable
 
 from followbot.schemas import LaserScan, PersonCandidates
 
-__all__ = ["LegDetector", "Prediction"]
+__all__ = ["LaserPose", "LegDetector", "Prediction"]
 
 #: Optional tracked-target position (x_m, y_m) in the scan's frame (thesis criterion 3).
 Prediction = tuple[float, float] | None
+
+#: Optional pose (x_m, y_m, yaw_rad) of the laser in the odometry frame at the scan's stamp
+#: (the robot's odometry pose composed with its ``laser_mount``), when the stage has odometry
+#: covering the stamp. Detectors that keep a history of scans (``learned``'s static
+#: background) register their scans with it; the others ignore it.
+LaserPose = tuple[float, float, float] | None
 
 
 @runtime_checkable
@@ -25,4 +31,6 @@ class LegDetector(Protocol):
 
     name: str
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates: ...
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates: ...

@@ -1,8 +1,11 @@
 """laser_legs: person candidates (legs) from every laser scan.
 
 Subscribes ``sensors/scan`` (every scan, in order, handled inline on Zenoh's delivery thread:
-detection takes ~0.1 ms), ``tracking/target`` and ``sensors/odom`` (for the thesis's criterion
-3: the target's predicted position gates the legs, see ``prediction``), and publishes
+detection takes ~0.1 ms), ``tracking/target`` (for the thesis's criterion 3: the target's
+predicted position gates the legs, see ``prediction``) and ``sensors/odom`` (criterion 3's
+ego-motion; and the laser's pose at each scan, odometry composed with ``laser_mount``, given to
+the detector: ``learned`` registers its static background with it instead of matching scans),
+and publishes
 ``perception/candidates`` exactly once per scan, stamped with the scan's stamp, also when no
 candidate is found and also when the detector fails (then empty; the error is counted in
 Health) — the lock-step rule 2 of docs/runtime.md.
@@ -60,8 +63,9 @@ class LaserLegsSettings(NodeSettings, kw_only=True, forbid_unknown_fields=True):
     prediction_max_age_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.5
     """A target older than this (scan stamp minus target stamp) is not used for gating."""
     odometry_max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.2
-    """Criterion 3's ego-motion: the robot's pose at a scan stamp past the last odometry is
-    extrapolated with its last twist for at most this long (s); later, no prediction."""
+    """Criterion 3's ego-motion and the detector's laser pose: the robot's pose at a scan
+    stamp past the last odometry is extrapolated with its last twist for at most this long
+    (s); later, no prediction and no pose (``learned`` then matches the scan itself)."""
     lockstep_target_wait_s: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.0
     """Lock-step runs: hold a scan until the tracker's target for the previous scan has
     arrived (it races the next scan over another link), at most this long. 0 (live): never
@@ -141,7 +145,8 @@ class _Stage:
         self.horizon_errors = 0
         gated = settings.use_target_prediction
         self.target_wait = settings.lockstep_target_wait_s if gated else 0.0
-        self.odom_wait = settings.lockstep_odometry_wait_s if gated else 0.0
+        self.odom_wait = settings.lockstep_odometry_wait_s  # the detector's pose needs it too
+        self.posed = 0  # scans given to the detector with the laser's odometry pose
         self.held = HeldInputs(
             node, self.process, self.ready, max(self.target_wait, self.odom_wait), "scans"
         )
@@ -178,8 +183,10 @@ class _Stage:
             self.horizon_errors += 1
             seen = None
         reach = scan_reach_m(self.clip_m, scan)
+        pose = self.predictor.laser_pose_at(scan.stamp_ns)
+        self.posed += pose is not None
         try:
-            result = self.detector.detect(scan, prediction)
+            result = self.detector.detect(scan, prediction, pose)
         except Exception:
             # rule 2: one output per scan even when the detector fails; the error is counted
             empty = empty_candidates(scan, self.detector.name)
@@ -202,6 +209,12 @@ class _Stage:
     def restart_odometry(self) -> None:
         self.predictor.reset_odometry()
         self.stamps["odom"] = -1
+        # a new odometry frame: a history registered in the old one (learned's background)
+        # would place the next scans wrongly
+        inner = getattr(self.detector, "inner", self.detector)  # under the robot-body filter
+        reset = getattr(inner, "reset", None)
+        if callable(reset):
+            reset()
 
     def notes(self) -> None:
         d = self.detector
@@ -210,6 +223,7 @@ class _Stage:
             f"body_candidates_dropped={getattr(d, 'dropped', 0)}",
             f"body_beams={getattr(d, 'body_beams', 0)}",
             f"gated_scans={self.predictor.used}",
+            f"odometry_posed_scans={self.posed}",
             f"prediction_skipped={self.predictor.skipped}",
             f"lockstep_waits={self.held.waits}",
             f"lockstep_wait_timeouts={self.held.timeouts}",
@@ -229,7 +243,7 @@ def setup(node: Node, settings: LaserLegsSettings) -> TargetPredictor:
     )
     if settings.use_target_prediction:
         node.subscribe("tracking/target", st.on_target, policy="all", on_restart=st.restart_target)
-        node.subscribe("sensors/odom", st.on_odometry, policy="all", on_restart=st.restart_odometry)
+    node.subscribe("sensors/odom", st.on_odometry, policy="all", on_restart=st.restart_odometry)
     st.notes()
     node.every(settings.health_period_s, st.notes, name="notes")
     node.log.info("detector %s, criterion 3 %s", st.detector.name, settings.use_target_prediction)

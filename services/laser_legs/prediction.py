@@ -1,4 +1,6 @@
-"""Where the tracked target should be in a new scan: the prediction of criterion 3 (no Zenoh).
+"""Where the tracked target should be in a new scan: the prediction of criterion 3 (no Zenoh);
+and where the laser is in the odometry frame at a scan (:meth:`TargetPredictor.laser_pose_at`,
+for detectors that register their scans, from the same odometry buffer).
 
 The thesis gates legs on the tracker's prediction (criterion 3, 4.3.2 eq. 4-7). In the
 distributed pipeline the tracker's latest ``tracking/target`` names an *earlier* scan: it is
@@ -33,7 +35,7 @@ import math
 from followbot.schemas import LaserScan, Odometry, TrackState
 from followbot.services.common.odometry import OdometryBuffer
 
-from .core import Prediction
+from .core import LaserPose, Prediction
 
 __all__ = ["TargetPredictor"]
 
@@ -124,3 +126,16 @@ class TargetPredictor:
             return None
         self.used += 1
         return px, py
+
+    def laser_pose_at(self, stamp_ns: int) -> LaserPose:
+        """The laser's pose (x, y, yaw) in the odometry frame at ``stamp_ns``: the robot's
+        odometry pose there composed with ``laser_pose``; None when the odometry does not
+        cover the stamp (or none was ever seen)."""
+        if not len(self.odometry):
+            return None
+        p = self.odometry.pose_at(stamp_ns)
+        if p is None:
+            return None
+        lx, ly, lyaw = self.laser_pose
+        c, s = math.cos(p[2]), math.sin(p[2])
+        return (p[0] + c * lx - s * ly, p[1] + s * lx + c * ly, p[2] + lyaw)

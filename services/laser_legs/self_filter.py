@@ -31,7 +31,7 @@ import numpy as np
 from followbot.schemas import LaserScan, PersonCandidates
 from followbot.services.common.scan import valid_mask
 
-from .core import LegDetector, Prediction
+from .core import LaserPose, LegDetector, Prediction
 
 __all__ = ["RobotBodyFilter", "SelfFilterSettings", "SelfFilteredDetector", "on_mask"]
 
@@ -163,10 +163,12 @@ class SelfFilteredDetector:
         self.body.reset()
         self.dropped = 0
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         mask = self.body.update(scan)
         self.body_beams = int(mask.sum())
-        result = self.inner.detect(scan, prediction)
+        result = self.inner.detect(scan, prediction, pose)
         kept = on_mask(result, mask)
         self.dropped += len(result.candidates) - len(kept.candidates)
         return kept

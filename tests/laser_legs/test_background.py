@@ -228,3 +228,91 @@ def test_background_penalty_removes_static_candidates_only():
             for c in moving:
                 assert any(math.hypot(c.x_m - d.x_m, c.y_m - d.y_m) < 1e-9 for d in b)
     assert on_posts > 10  # the plain detector does take the posts for legs
+
+
+def _moving_pose(k):
+    """A robot driving forward at 0.3 m/s and turning at 10°/s (world frame)."""
+    return (0.03 * k, 0.0, math.radians(1.0) * k)
+
+
+def _in_odometry_frame(pose, origin=(5.0, -2.0, 2.0)):
+    """``pose`` in an odometry frame whose origin sits at ``origin`` of the world: the frame
+    of the given poses is the odometry's own, not the first scan's."""
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+    return (origin[0] + c * pose[0] - s * pose[1], origin[1] + s * pose[0] + c * pose[1],
+            origin[2] + pose[2])  # fmt: skip
+
+
+def _post_and_legs(bg, k, given):
+    pose = _moving_pose(k)
+    legs = walker(k)
+    scan = world_scan(pose, [POST, *legs], ROOM, k)
+    pts = [_to_laser(pose, POST[0], POST[1])] + [_to_laser(pose, lx, ly) for lx, ly, _ in legs]
+    x = np.array([p[0] for p in pts], float)
+    y = np.array([p[1] for p in pts], float)
+    hits, views = bg.update(scan, x, y, _in_odometry_frame(pose) if given else None)
+    return StaticBackground.static_mask(hits, views, 0.9, 5)
+
+
+def test_given_poses_register_the_scans_without_matching(monkeypatch):
+    # odometry (laser pose = odom pose * mount) places each scan: no ICP is run
+    def no_match(*_a, **_k):
+        raise AssertionError("matched a scan that came with its pose")
+
+    monkeypatch.setattr("followbot.services.laser_legs.background.match_scans", no_match)
+    bg = StaticBackground(3.0)
+    statics = np.array([_post_and_legs(bg, k, True) for k in range(40)])
+    assert bg.resets == 0 and bg.given_poses == 40
+    assert statics[10:, 0].all()  # the post
+    assert not statics[:, 1:].any()  # the walking legs never
+    assert bg.pose == pytest.approx(np.array(_in_odometry_frame(_moving_pose(39))))
+
+
+def test_scans_without_a_pose_are_matched_onto_the_given_ones():
+    # odometry missing for some scans: those are matched by ICP and chained onto the last
+    # given pose, in the same frame (no reset, the post stays static)
+    bg = StaticBackground(3.0)
+    statics = []
+    for k in range(40):
+        given = k % 3 != 2
+        statics.append(_post_and_legs(bg, k, given))
+        if not given:
+            assert bg.pose[:2] == pytest.approx(_in_odometry_frame(_moving_pose(k))[:2], abs=0.03)
+    statics = np.array(statics)
+    assert bg.resets == 0 and bg.given_poses == 27
+    assert statics[10:, 0].all()
+    assert not statics[:, 1:].any()
+
+
+def test_poses_arriving_after_matched_scans_start_the_history_afresh():
+    # the chained frame (zero at the first scan) is not the odometry's: one reset, then on
+    bg = StaticBackground(3.0)
+    statics = np.array([_post_and_legs(bg, k, k >= 5) for k in range(30)])
+    assert bg.resets == 1
+    assert statics[15:, 0].all()
+    assert not statics[:, 1:].any()
+
+
+def test_detector_behind_the_body_filter_registers_by_the_given_pose(monkeypatch):
+    """``detect(scan, prediction, pose)`` as the node calls it: on a moving robot the posts
+    become background by the odometry pose alone (no matching), the walker stays."""
+    from followbot.services.laser_legs.self_filter import SelfFilteredDetector
+
+    def no_match(*_a, **_k):
+        raise AssertionError("matched a scan that came with its pose")
+
+    monkeypatch.setattr("followbot.services.laser_legs.background.match_scans", no_match)
+    det = SelfFilteredDetector(
+        make_detector("learned", {"background_memory_s": 3.0, "background_penalty": 1.0})
+    )
+    posts = [POST, (4.0, 1.0, 0.06), (4.2, 1.3, 0.06)]
+    for k in range(40):
+        pose = _moving_pose(k)
+        scan = world_scan(pose, [*posts, *walker(k)], ROOM, k)
+        out = det.detect(scan, None, _in_odometry_frame(pose))
+        if k >= 12:
+            for c in out.candidates:
+                for leg in c.legs:
+                    wx, wy = _in_odometry_frame((leg.x_m, leg.y_m, 0.0), pose)[:2]  # world
+                    assert min(math.hypot(wx - p[0], wy - p[1]) for p in posts) > 0.3
+    assert det.inner.background.given_poses == 40 and det.inner.background.resets == 0

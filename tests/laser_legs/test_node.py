@@ -171,6 +171,33 @@ def test_the_laser_mount_turns_the_base_frame_target_into_the_scan_s_frame():
     assert still.predict(two_people(100 * MS)) == pytest.approx((2.0, 0.8))
 
 
+@pytest.mark.parametrize("gated", [True, False])
+def test_the_detector_gets_the_laser_s_odometry_pose_at_each_scan(monkeypatch, gated):
+    """The laser's pose in the odometry frame (odometry * laser_mount, interpolated at the
+    scan's stamp) goes to the detector with each scan, also with criterion 3 off; none
+    before any odometry."""
+    from followbot.services.laser_legs.detectors.thesis import ClusterLegDetector
+
+    poses = []
+    inner = ClusterLegDetector.detect
+    monkeypatch.setattr(
+        ClusterLegDetector,
+        "detect",
+        lambda self, s, p=None, pose=None: poses.append(pose) or inner(self, s, p),
+    )
+    mount = LaserMount(x_m=0.5, y_m=0.0, yaw_deg=90.0)
+    h = Harness(laser_mount=mount, use_target_prediction=gated)
+    h.put("sensors/scan", two_people(50 * MS))
+    h.put("sensors/odom", Odometry(stamp_ns=100 * MS, x_m=1.0, y_m=2.0, yaw_rad=0.0))
+    h.put("sensors/odom", Odometry(stamp_ns=300 * MS, x_m=1.0, y_m=2.0, yaw_rad=math.pi / 2))
+    h.put("sensors/scan", two_people(200 * MS))
+    assert poses[0] is None
+    # halfway: the base at (1, 2) turned 45 deg left; the laser 0.5 m ahead of it, turned 90
+    c = 0.5 * math.cos(math.pi / 4)
+    assert poses[1] == pytest.approx((1.0 + c, 2.0 + c, 3 * math.pi / 4))
+    assert len(h.out) == 2
+
+
 def test_the_old_laser_pose_setting_says_what_replaced_it(tmp_path):
     cfg = tmp_path / "legs.yaml"
     cfg.write_text("laser_pose_in_base: [0.5, 0, 0]\n")
@@ -196,7 +223,7 @@ def test_a_failing_detector_still_answers_the_scan(monkeypatch):
     # the node holds the detector in its handler's closure: break the class under it
     from followbot.services.laser_legs.detectors.thesis import ClusterLegDetector
 
-    monkeypatch.setattr(ClusterLegDetector, "detect", lambda self, s, p=None: boom(s, p))
+    monkeypatch.setattr(ClusterLegDetector, "detect", lambda self, s, p=None, _q=None: boom(s, p))
     h.put("sensors/scan", two_people(7 * MS))
     assert [m.stamp_ns for m in h.out] == [7 * MS]
     assert h.out[0].candidates == [] and h.out[0].reach_m == 3.5

@@ -51,7 +51,7 @@ class _Fixed:
 
     name = "fixed"
 
-    def detect(self, scan: LaserScan, prediction=None) -> PersonCandidates:
+    def detect(self, scan: LaserScan, prediction=None, pose=None) -> PersonCandidates:
         return PersonCandidates(
             stamp_ns=scan.stamp_ns,
             frame_id=scan.frame_id,

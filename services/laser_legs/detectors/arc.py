@@ -22,7 +22,7 @@ from followbot.schemas import LaserScan, PersonCandidates
 
 from ..beams import prepare
 from ..clusters import LegSet, cluster_by_jump, end_width, gate, inscribed_angle_stats
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import empty_candidates
 from ..pairing import paired_candidates
 
@@ -84,7 +84,9 @@ class InscribedAngleArcDetector:
             legs = legs.select(gate(legs, prediction, s.gate_m))
         return legs
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         legs = self.legs(scan, prediction)
         if len(legs) == 0:
             return empty_candidates(scan, self.name)

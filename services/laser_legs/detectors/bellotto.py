@@ -36,7 +36,7 @@ import numpy as np
 from followbot.schemas import Candidate, LaserScan, Leg, PersonCandidates
 from followbot.services.common.scan import valid_mask
 
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import candidates_message, person
 
 __all__ = ["BellottoSettings", "EdgePatternDetector"]
@@ -177,7 +177,9 @@ class EdgePatternDetector:
                 out.append((kind, i, i))
         return out
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         s = self.settings
         if scan.ranges.shape[0] < 3:
             return candidates_message(scan, self.name, [])

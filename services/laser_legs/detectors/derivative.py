@@ -28,7 +28,7 @@ from followbot.schemas import LaserScan, PersonCandidates
 
 from ..beams import Beams, prepare
 from ..clusters import Clusters, LegSet, end_width
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import candidates_message, leg_list, person
 from ..pairing import pair_legs
 
@@ -101,7 +101,9 @@ class DerivativeSegmentDetector:
         keep = (w >= s.min_width_m) & (w <= s.max_width_m)  # eq. 18: D_Aa <= D_T
         return c.select(keep), w[keep], b
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         s = self.settings
         c, w, b = self.segments(scan)
         if len(c) == 0:

@@ -55,7 +55,7 @@ from followbot.schemas import LaserScan, PersonCandidates
 
 from ..beams import Beams, prepare
 from ..clusters import Clusters, LegSet, cluster_by_jump, end_width, gate
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import candidates_message, empty_candidates, leg_list, person
 
 __all__ = ["IAVSettings", "InscribedAngleVarianceDetector", "noise_aware_iav"]
@@ -213,7 +213,9 @@ class InscribedAngleVarianceDetector:
     def __init__(self, settings: IAVSettings | None = None) -> None:
         self.settings = settings or IAVSettings()
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         s = self.settings
         b = prepare(scan, s.clip_range_m)
         c = cluster_by_jump(b, s.cluster_jump_m)

@@ -28,13 +28,15 @@ project whose recordings we evaluate on; our own feature set and code.
      training they raised the false persons; ``train.py``.)
 
 3. Optionally (``background_memory_s``), a segment on static background — seen occupied again
-   and again over the last seconds by the same laser, scans registered by ICP
-   (:mod:`..background`) — loses ``background_penalty`` of its vote share: furniture legs and
+   and again over the last seconds by the same laser, scans registered by the laser's
+   odometry pose when ``detect`` is given one (``pose``), else by ICP (:mod:`..background`) —
+   loses ``background_penalty`` of its vote share: furniture legs and
    clutter stay put, walking legs do not. The detector is then stateful: it expects the scans
    of one stream in order (a new size, frame, a stamp going back or a gap starts afresh).
 
 4. Optionally (``track_memory_s``), temporal confirmation (:class:`LegTracks`): short-lived
-   leg tracks in the registered frame of step 3 (the laser frame when the background is off)
+   leg tracks in the registered frame of step 3 (when the background is off: the odometry
+   frame of the given pose, else the laser frame)
    carry an evidence ``e``, a running mean of the scores of the segments they took up. A
    segment's score becomes ``w·s + (1 − w)·e`` with ``e`` the evidence of the track it
    continues (0 for a new track): a leg seen over several scans keeps its score, a blob that
@@ -69,7 +71,7 @@ from followbot.schemas import LaserScan, Leg, PersonCandidates
 from followbot.services.common.scan import beam_geometry, valid_mask
 
 from ..background import StaticBackground
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import candidates_message, person
 from ..pairing import pair_legs
 
@@ -177,7 +179,10 @@ class LearnedSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     background_penalty: float = 0.3  # train.py, cross-validation (1: never a leg)
     background_min_views: int = 5  # a choice: ~0.7 s of a 7.5 Hz laser
     background_hit_m: float = 0.15  # a choice: leg radius + matching error
-    background_ego_motion: bool = True  # register scans (ICP); False: the laser is still
+    background_ego_motion: bool = True
+    """Scans that come without the laser's pose (no odometry at their stamp) are registered
+    to each other by ICP; False: such a scan is taken as seen from where the previous one
+    was (a still laser). A pose from odometry is used whenever the stage has one."""
     # temporal confirmation (LegTracks; not in the seeds): a segment's score becomes
     # track_weight * score + (1 - track_weight) * the evidence of the leg track it continues
     # (a running mean of its scores with time constant track_memory_s; 0 for a new track).
@@ -300,7 +305,9 @@ def segments(
     else:  # rotate so that the arrays start just after a cut
         shift = int((~join).nonzero()[0][0]) + 1
         if shift < m:
-            beam, x, y, r, join = (np.roll(a, -shift) for a in (beam, x, y, r, join))
+            order = np.arange(shift, shift + m)  # a rotation by shift (one take per array)
+            order[m - shift :] -= m
+            beam, x, y, r, join = (a.take(order) for a in (beam, x, y, r, join))
     cut = (~join).nonzero()[0]  # the last point of each segment
     ends = cut
     starts = np.empty_like(cut)
@@ -327,7 +334,11 @@ def segment_features(seg: Segments) -> np.ndarray:
 
 
 def features_and_centroids(seg: Segments):
-    """Features and centroids (cx, cy) of the segments."""
+    """Features and centroids (cx, cy) of the segments.
+
+    Every per-point quantity is one row of a stacked array and the segments' sums are one
+    ``np.add.reduceat`` over the segments' (contiguous) points: the cost is a fixed number of
+    numpy calls whatever the number of segments."""
     starts, ends, x, y, r = seg.starts, seg.ends, seg.x, seg.y, seg.r
     k = int(starts.shape[0])
     if k == 0:
@@ -336,19 +347,18 @@ def features_and_centroids(seg: Segments):
     p = _gather(starts, ends, x, y)
     m = _moments(p)
     line_res, axis_ratio = _line_fit(m)
-    radius, circ_res = _circle_fit(p, m, line_res)
-    blen, breg = _boundary(x, y, starts, ends, p.fc)
-    width, ia_mean, ia_std = _chord_and_angles(p, x, y, starts, ends)
-    depth, depth_max = _chord_depth(p, x, y, starts, ends, width)
-    rng = np.hypot(m.cx, m.cy)
     ax, ay, ex, ey = x[starts], y[starts], x[ends], y[ends]
+    wx, wy = ex - ax, ey - ay
+    width = np.hypot(wx, wy)
+    radius, circ_res, depth, depth_max, ia_mean, ia_std = _shape_sums(p, m, line_res, width)
+    rng = np.hypot(m.cx, m.cy)
     # the arc the beams sweep at that range: the angle between the end points' bearings
     # ((points - 1) x the beam spacing on a run without dropouts)
     sweep = np.abs(np.arctan2(ax * ey - ay * ex, ax * ex + ay * ey))
     obliq = np.minimum(width / np.maximum(sweep * rng, 1e-6), OBLIQUENESS_CAP)
     step_min, step_max = _background_steps(r, seg.outer, starts, ends)
     cols = [p.fc, width, rng, np.sqrt(m.tr), m.mean_spread, line_res, axis_ratio, radius, circ_res]
-    cols += [blen, breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
+    cols += [m.blen, m.breg, ia_mean, ia_std, depth, depth_max, obliq, step_min, step_max]
     partner_shape = np.array([circ_res, line_res, radius, depth, step_max, rng])
     cols += _context(m.cx, m.cy, width, p.fc, partner_shape)
     return _rows(cols, k), m.cx, m.cy
@@ -364,8 +374,8 @@ class _Points(NamedTuple):
     """Segment index of each point."""
     first: np.ndarray
     """(k,) offset of each segment's first point in the gathered arrays."""
-    idx: np.ndarray
-    """Beam index of each point."""
+    last: np.ndarray
+    """(k,) offset of each segment's last point."""
     px: np.ndarray
     py: np.ndarray
 
@@ -374,21 +384,20 @@ def _gather(starts, ends, x, y) -> _Points:
     k = int(starts.shape[0])
     cnt = ends - starts + 1
     cid = np.repeat(np.arange(k), cnt)
-    first = np.cumsum(cnt) - cnt
-    idx = np.arange(cid.shape[0]) - first[cid] + starts[cid]
-    return _Points(k, cnt.astype(np.float64), cid, first, idx, x[idx], y[idx])
+    last = np.cumsum(cnt) - 1
+    first = last - cnt + 1
+    idx = np.arange(cid.shape[0]) + (starts - first)[cid]  # the points' indices in x, y
+    return _Points(k, cnt.astype(np.float64), cid, first, last, x[idx], y[idx])
 
 
 class _Moments(NamedTuple):
-    """Centroids, the points about them, and the segments' second moments."""
+    """Centroids, the points about them, and per-segment sums."""
 
     cx: np.ndarray
     cy: np.ndarray
     u: np.ndarray
     """Per point: x about its segment's centroid."""
     v: np.ndarray
-    zz: np.ndarray
-    """Per point: u^2 + v^2."""
     suu: np.ndarray
     svv: np.ndarray
     suv: np.ndarray
@@ -398,23 +407,44 @@ class _Moments(NamedTuple):
     """Trace of the scatter matrix [suu suv; suv svv] (the mean squared spread)."""
     det: np.ndarray
     """Its determinant."""
+    bu: np.ndarray
+    bv: np.ndarray
+    """Half the means of u (u^2 + v^2) and v (u^2 + v^2) (the circle fit's right-hand side)."""
+    blen: np.ndarray
+    """Boundary length: the sum of the point-to-point steps."""
+    breg: np.ndarray
+    """Boundary regularity: the standard deviation of the steps."""
 
 
 def _moments(p: _Points) -> _Moments:
-    k, cid, fc = p.k, p.cid, p.fc
-    cx = np.bincount(cid, p.px, k) / fc
-    cy = np.bincount(cid, p.py, k) / fc
+    fc, cid, first = p.fc, p.cid, p.first
+    c = np.add.reduceat(np.stack([p.px, p.py]), first, axis=1) / fc
+    cx, cy = c[0], c[1]
     u = p.px - cx[cid]
     v = p.py - cy[cid]
-    uu, vv = u * u, v * v
-    suu = np.bincount(cid, uu, k) / fc
-    svv = np.bincount(cid, vv, k) / fc
-    suv = np.bincount(cid, u * v, k) / fc
+    q = np.empty((8, u.shape[0]))
+    uu, vv = np.multiply(u, u, out=q[0]), np.multiply(v, v, out=q[1])
+    np.multiply(u, v, out=q[2])
     zz = uu + vv
-    mean_spread = np.bincount(cid, np.sqrt(zz), k) / fc
+    np.sqrt(zz, out=q[3])
+    np.multiply(u, zz, out=q[4])
+    np.multiply(v, zz, out=q[5])
+    # the steps from each point to the next in its segment (0 into a segment's first point)
+    step2 = q[7]
+    step2[0] = 0.0
+    np.add(np.square(p.px[1:] - p.px[:-1]), np.square(p.py[1:] - p.py[:-1]), out=step2[1:])
+    step2[first] = 0.0
+    np.sqrt(step2, out=q[6])
+    sums = np.add.reduceat(q, first, axis=1)
+    suu, svv, suv, spread = sums[:4] / fc
+    bu, bv = 0.5 * sums[4:6] / fc
+    nstep = fc - 1.0
+    blen = sums[6]
+    bmean = blen / nstep
+    breg = np.sqrt(np.maximum(sums[7] / nstep - bmean * bmean, 0.0))
     tr = suu + svv
     det = suu * svv - suv * suv
-    return _Moments(cx, cy, u, v, zz, suu, svv, suv, mean_spread, tr, det)
+    return _Moments(cx, cy, u, v, suu, svv, suv, spread, tr, det, bu, bv, blen, breg)
 
 
 def _line_fit(m: _Moments) -> tuple[np.ndarray, np.ndarray]:
@@ -427,73 +457,50 @@ def _line_fit(m: _Moments) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(lam2), np.sqrt(lam2 / np.maximum(lam1, 1e-12))
 
 
-def _circle_fit(p: _Points, m: _Moments, line_res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(radius, RMS residual) of each segment's Kasa circle fit; a straight segment (singular
-    system or radius over RADIUS_CAP_M) gets the cap and its line-fit residual."""
-    k, cid, fc = p.k, p.cid, p.fc
-    suu, svv, suv, u, v, zz, det = m.suu, m.svv, m.suv, m.u, m.v, m.zz, m.det
-    # on centred points: [suu suv; suv svv] (uc, vc) = 0.5 (m(u zz), m(v zz)),
-    # r^2 = uc^2 + vc^2 + suu + svv
-    bu = 0.5 * np.bincount(cid, u * zz, k) / fc
-    bv = 0.5 * np.bincount(cid, v * zz, k) / fc
+def _shape_sums(p: _Points, m: _Moments, line_res: np.ndarray, width: np.ndarray):
+    """(circle radius, circle residual, chord depth mean and largest, inscribed angles mean
+    and std) of each segment, from one ``reduceat`` over the points.
+
+    * Kasa circle fit on the centred points: [suu suv; suv svv] (uc, vc) = (bu, bv),
+      r^2 = uc^2 + vc^2 + suu + svv; a straight segment (singular system or radius over
+      RADIUS_CAP_M) gets the cap and its line-fit residual;
+    * chord depth: distance of the points from the chord A-B (A, B the end points), positive
+      on the laser's side;
+    * inscribed angles APB of the interior points P."""
+    fc, cid, first, last, px, py = p.fc, p.cid, p.first, p.last, p.px, p.py
+    det = m.det
     ok = det > 1e-14
     sdet = np.where(ok, det, 1.0)
-    uc = np.where(ok, (bu * svv - bv * suv) / sdet, 0.0)
-    vc = np.where(ok, (bv * suu - bu * suv) / sdet, 0.0)
+    uc = np.where(ok, (m.bu * m.svv - m.bv * m.suv) / sdet, 0.0)
+    vc = np.where(ok, (m.bv * m.suu - m.bu * m.suv) / sdet, 0.0)
     radius = np.sqrt(uc * uc + vc * vc + m.tr)
     straight = ~ok | (radius > RADIUS_CAP_M)
     radius[straight] = RADIUS_CAP_M
-    e = np.sqrt((u - uc[cid]) ** 2 + (v - vc[cid]) ** 2) - radius[cid]
-    circ_res = np.sqrt(np.bincount(cid, e * e, k) / fc)
-    return radius, np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
-
-
-def _boundary(x, y, starts, ends, fc) -> tuple[np.ndarray, np.ndarray]:
-    """(length, regularity: std of the steps) of each segment's chain of points, from one
-    cumulative sum of the point-to-point steps over the scan."""
-    sx = x[1:] - x[:-1]
-    sy = y[1:] - y[:-1]
-    s2 = sx * sx + sy * sy
-    cs = np.zeros((2, s2.shape[0] + 1))
-    np.cumsum(np.sqrt(s2), out=cs[0, 1:])
-    np.cumsum(s2, out=cs[1, 1:])
-    nstep = fc - 1.0
-    blen = cs[0, ends] - cs[0, starts]
-    bmean = blen / nstep
-    breg = np.sqrt(np.maximum((cs[1, ends] - cs[1, starts]) / nstep - bmean * bmean, 0.0))
-    return blen, breg
-
-
-def _chord_and_angles(p: _Points, x, y, starts, ends) -> tuple[np.ndarray, ...]:
-    """(width A-B, mean and std of the inscribed angles APB) of each segment, with A and B its
-    end points and P its interior points."""
-    k, cid = p.k, p.cid
-    ax, ay = x[starts], y[starts]
-    wx, wy = x[ends] - ax, y[ends] - ay
-    width = np.hypot(wx, wy)
-    inner = (p.idx != starts[cid]) & (p.idx != ends[cid])
-    icid = cid[inner]
-    qx, qy = p.px[inner], p.py[inner]
-    pax, pay = ax[icid] - qx, ay[icid] - qy
-    pbx, pby = pax + wx[icid], pay + wy[icid]
-    ang = np.abs(np.arctan2(pax * pby - pay * pbx, pax * pbx + pay * pby))
-    n_inner = np.maximum(p.fc - 2.0, 1.0)
-    ia_mean = np.bincount(icid, ang, k) / n_inner
-    ia_std = np.sqrt(np.maximum(np.bincount(icid, ang * ang, k) / n_inner - ia_mean**2, 0.0))
-    return width, ia_mean, ia_std
-
-
-def _chord_depth(p: _Points, x, y, starts, ends, width) -> tuple[np.ndarray, np.ndarray]:
-    """(mean, largest) distance of each segment's points from its chord, positive on the
-    laser's side."""
-    ax, ay = x[starts], y[starts]
-    wx, wy = x[ends] - ax, y[ends] - ay
-    cid = p.cid
+    ax, ay = px[first], py[first]
+    wx, wy = px[last] - ax, py[last] - ay
     wn = np.maximum(width, 1e-9)
     nx, ny = -wy / wn, wx / wn
     nx, ny = np.where(nx * ax + ny * ay > 0, (-nx, -ny), (nx, ny))  # normal towards the laser
-    dep = nx[cid] * (p.px - ax[cid]) + ny[cid] * (p.py - ay[cid])
-    return np.bincount(cid, dep, p.k) / p.fc, np.maximum.reduceat(dep, p.first)
+    q = np.empty((4, px.shape[0]))
+    e = np.hypot(m.u - uc[cid], m.v - vc[cid]) - radius[cid]
+    np.multiply(e, e, out=q[0])
+    pax, pay = ax[cid] - px, ay[cid] - py  # P -> A
+    dep = np.multiply(nx[cid], -pax, out=q[1])
+    dep -= ny[cid] * pay
+    pbx, pby = pax + wx[cid], pay + wy[cid]  # P -> B
+    ang = np.arctan2(pax * pby - pay * pbx, pax * pbx + pay * pby, out=q[2])
+    np.abs(ang, out=ang)
+    ang[first] = 0.0  # only the interior points
+    ang[last] = 0.0
+    np.multiply(ang, ang, out=q[3])
+    sums = np.add.reduceat(q, first, axis=1)
+    circ_res = np.sqrt(sums[0] / fc)
+    circ_res = np.where(straight, line_res, np.minimum(circ_res, RADIUS_CAP_M))
+    n_inner = np.maximum(fc - 2.0, 1.0)
+    ia_mean = sums[2] / n_inner
+    ia_std = np.sqrt(np.maximum(sums[3] / n_inner - ia_mean**2, 0.0))
+    depth_max = np.maximum.reduceat(q[1], first)
+    return radius, circ_res, sums[1] / fc, depth_max, ia_mean, ia_std
 
 
 def _background_steps(r, outer, starts, ends) -> tuple[np.ndarray, np.ndarray]:
@@ -524,8 +531,8 @@ def _context(cx, cy, width, fc, partner_shape: np.ndarray) -> list:
         np.minimum(nd, CONTEXT_CAP_M),
         np.where(near, width[j], 0.0),
         np.where(near, fc[j], 0.0),
-        np.count_nonzero(dd < 1.0, axis=1),
-        np.count_nonzero(dd < PARTNER_M, axis=1),
+        (dd < 1.0).sum(axis=1),
+        (dd < PARTNER_M).sum(axis=1),
     ]
     shape = partner_shape[:, j]
     shape[5] -= partner_shape[5]
@@ -675,50 +682,72 @@ class LegTracks:
         a = math.exp(-dt / self.memory_s)
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
-        if pose is not None and np.all(np.isfinite(pose)):
-            c, s_ = math.cos(float(pose[2])), math.sin(float(pose[2]))
-            x, y = c * x - s_ * y + float(pose[0]), s_ * x + c * y + float(pose[1])
-        ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y) & np.isfinite(score))
-        tx, ty, tvx, tvy, te = self._t
-        px, py = (tx + tvx * dt, ty + tvy * dt) if self.velocity else (tx, ty)
-        track = np.full(score.shape[0], -1, dtype=np.intp)  # the track each segment continues
-        if ok.shape[0] and tx.shape[0]:
-            d = np.hypot(x[ok, None] - px, y[ok, None] - py)
-            si, tj = np.nonzero(d <= self.gate_m)
-            taken_s: set[int] = set()
-            taken_t: set[int] = set()
-            for f in np.argsort(d[si, tj], kind="stable").tolist():  # closest pairs first
-                i, j = int(si[f]), int(tj[f])
-                if i not in taken_s and j not in taken_t:
-                    taken_s.add(i)
-                    taken_t.add(j)
-                    track[ok[i]] = j
+        if pose is not None:
+            p0, p1, p2 = (float(v) for v in pose)
+            if math.isfinite(p0) and math.isfinite(p1) and math.isfinite(p2):
+                c, s_ = math.cos(p2), math.sin(p2)
+                x, y = c * x - s_ * y + p0, s_ * x + c * y + p1
+        finite = np.isfinite(score)
+        usable = finite & np.isfinite(x) & np.isfinite(y)
+        track = self._associate(x, y, usable, dt)  # the track each segment continues, or -1
         hit = np.flatnonzero(track >= 0)
         j = track[hit]
+        t = self._t
         prior = np.zeros(score.shape[0])
-        prior[hit] = te[j]
+        prior[hit] = t[4, j]
         out = self.weight * score + (1.0 - self.weight) * prior  # out_i = w s_i + (1 − w) e_j(i)
-        out[~np.isfinite(score)] = score[~np.isfinite(score)]
-        # the tracks after this scan
-        t = self._t.copy()
-        t[4] *= a  # a missed track: a e_j
-        t[4, j] += (1.0 - a) * score[hit]  # e_j ← a e_j + (1 − a) s_i
+        if not finite.all():
+            out[~finite] = score[~finite]
+        # the tracks after this scan (in place: self._t is replaced below)
+        e = t[4]
+        e *= a  # a missed track: a e_j
+        e[j] += (1.0 - a) * score[hit]  # e_j ← a e_j + (1 − a) s_i
         if dt > 0:
-            t[2, j] = 0.5 * tvx[j] + 0.5 * (x[hit] - tx[j]) / dt
-            t[3, j] = 0.5 * tvy[j] + 0.5 * (y[hit] - ty[j]) / dt
+            t[2, j] = 0.5 * t[2, j] + 0.5 * (x[hit] - t[0, j]) / dt
+            t[3, j] = 0.5 * t[3, j] + 0.5 * (y[hit] - t[1, j]) / dt
         t[0, j], t[1, j] = x[hit], y[hit]
-        keep = t[4] >= 0.01
+        keep = e >= 0.01
         keep[j] = True
-        new = np.setdiff1d(ok, hit, assume_unique=True)
-        born = np.zeros((5, new.shape[0]))
-        born[0], born[1] = x[new], y[new]
-        born[4] = (1.0 - a) * score[new]
-        t = np.concatenate([t[:, keep], born], axis=1)
-        t[4] = np.clip(t[4], 0.0, 1.0)
+        new = np.flatnonzero(usable & (track < 0))
+        if new.shape[0]:
+            born = np.zeros((5, new.shape[0]))
+            born[0], born[1] = x[new], y[new]
+            born[4] = (1.0 - a) * score[new]
+            t = np.concatenate([t[:, keep], born], axis=1)
+        elif not keep.all():
+            t = t[:, keep]
+        e = t[4]
+        np.minimum(np.maximum(e, 0.0, out=e), 1.0, out=e)
         if t.shape[1] > self.max_tracks:
-            t = t[:, np.argsort(-t[4], kind="stable")[: self.max_tracks]]
+            t = t[:, np.argsort(-e, kind="stable")[: self.max_tracks]]
         self._t = t
         return out
+
+    def _associate(self, x: np.ndarray, y: np.ndarray, usable: np.ndarray, dt: float):
+        """Greedy nearest pairs of segments (``usable`` ones) and predicted tracks within
+        ``gate_m``, closest first, each once: the track index of each segment, -1 for none."""
+        track = np.full(x.shape[0], -1, dtype=np.intp)
+        t = self._t
+        if t.shape[1] == 0:
+            return track
+        ok = np.flatnonzero(usable)
+        if ok.shape[0] == 0:
+            return track
+        px, py = (t[0] + t[2] * dt, t[1] + t[3] * dt) if self.velocity else (t[0], t[1])
+        d = np.hypot(x[ok, None] - px, y[ok, None] - py)
+        si, tj = np.nonzero(d <= self.gate_m)
+        if si.shape[0] == 0:
+            return track
+        sl, tl, okl = si.tolist(), tj.tolist(), ok.tolist()
+        taken_s: set[int] = set()
+        taken_t: set[int] = set()
+        for f in np.argsort(d[si, tj], kind="stable").tolist():  # closest pairs first
+            i, jj = sl[f], tl[f]
+            if i not in taken_s and jj not in taken_t:
+                taken_s.add(i)
+                taken_t.add(jj)
+                track[okl[i]] = jj
+        return track
 
 
 class RandomTreesLegDetector:
@@ -755,23 +784,27 @@ class RandomTreesLegDetector:
         if self.tracks is not None:
             self.tracks.reset()
 
-    def static_segments(self, scan: LaserScan, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
-        """Register ``scan`` with the background model; True for the segments (centroids
-        ``cx``, ``cy``) that lie on static background. All False when the model is off."""
+    def static_segments(
+        self, scan: LaserScan, cx: np.ndarray, cy: np.ndarray, pose: LaserPose = None
+    ) -> np.ndarray:
+        """Register ``scan`` with the background model (at ``pose`` when given, else by
+        matching); True for the segments (centroids ``cx``, ``cy``) that lie on static
+        background. All False when the model is off."""
         if self.background is None:
             return np.zeros(cx.shape[0], dtype=bool)
         s = self.settings
         resets = self.background.resets
-        hits, views = self.background.update(scan, cx, cy)
+        hits, views = self.background.update(scan, cx, cy, pose)
         if self.background.resets != resets and self.tracks is not None:
             self.tracks.reset()  # the registered frame restarts
         return StaticBackground.static_mask(
             hits, views, s.background_static_fraction, s.background_min_views
         )
 
-    def _pose(self) -> np.ndarray | None:
-        """The last scan's pose in the background's registered frame (None without it)."""
-        return None if self.background is None else self.background.pose
+    def _pose(self, given: LaserPose) -> np.ndarray | LaserPose:
+        """The last scan's pose in the background's registered frame; without the
+        background, the ``given`` pose (None: the laser frame)."""
+        return given if self.background is None else self.background.pose
 
     def check(self) -> None:
         """Load the model file now, so a missing or unreadable one is a ValueError naming it
@@ -804,7 +837,9 @@ class RandomTreesLegDetector:
             return np.zeros(0)
         return vote_share(self.model, features)
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         s = self.settings
         seg = segments(
             scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
@@ -813,16 +848,16 @@ class RandomTreesLegDetector:
         if starts.shape[0] == 0:
             z = np.zeros(0)
             if self.background is not None:  # the background and the tracks see every scan
-                self.static_segments(scan, z, z)
+                self.static_segments(scan, z, z, pose)
             if self.tracks is not None:
-                self.tracks.update(scan, z, z, z, self._pose())
+                self.tracks.update(scan, z, z, z, self._pose(pose))
             return candidates_message(scan, self.name, [])
         feats, cx, cy = features_and_centroids(seg)
         score = self.leg_scores(feats)
         if self.background is not None:
-            score = score - s.background_penalty * self.static_segments(scan, cx, cy)
+            score = score - s.background_penalty * self.static_segments(scan, cx, cy, pose)
         if self.tracks is not None:
-            score = self.tracks.update(scan, cx, cy, score, self._pose())
+            score = self.tracks.update(scan, cx, cy, score, self._pose(pose))
         if prediction is not None:
             px, py = float(prediction[0]), float(prediction[1])
             if math.isfinite(px) and math.isfinite(py):

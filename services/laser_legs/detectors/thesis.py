@@ -43,7 +43,7 @@ from followbot.services.runtime.settings import removed
 
 from ..beams import NO_RETURN
 from ..clusters import LegSet, bridged, gate, gate_xy
-from ..core import Prediction
+from ..core import LaserPose, Prediction
 from ..message import candidates_message, empty_candidates
 from ..pairing import Anchor, paired_candidates
 
@@ -306,7 +306,9 @@ class ClusterLegDetector:
                 found.append((i, c, w))
         return found
 
-    def detect(self, scan: LaserScan, prediction: Prediction = None) -> PersonCandidates:
+    def detect(
+        self, scan: LaserScan, prediction: Prediction = None, pose: LaserPose = None
+    ) -> PersonCandidates:
         s = self.settings
         legs = self._legs(scan)
         if prediction is None:
