@@ -75,6 +75,22 @@ services:
     assert vision["zenoh"] == {"mode": "peer", "lease_ms": 3000, "connect": ["tcp/10.0.0.1:7447"]}
 
 
+def test_no_preset_runs_the_followbot_defaults_and_thesis_is_the_thesis(tmp_path):
+    """The defaults (no preset, or ``followbot``) are the real-data choice: the learned
+    detector and people confirmed on evidence; ``thesis`` keeps the thesis's parts."""
+    for preset in ("", "preset: followbot\n"):
+        c = load_compose(write(tmp_path, preset + "services: {laser_legs: {}, tracker: {}}\n"))
+        assert service_settings(c, "laser_legs")["detector"] == "learned"
+        assert service_settings(c, "tracker")["initiator"] == "evidence"
+    c = load_compose(write(tmp_path, "preset: thesis\nservices: {laser_legs: {}, tracker: {}}\n"))
+    assert service_settings(c, "laser_legs")["detector"] == "thesis"
+    tracker = service_settings(c, "tracker")
+    assert "initiator" not in tracker  # the settings' own default, the thesis's ``hits``
+    from followbot.services.tracker.settings import TrackerSettings
+
+    assert TrackerSettings().initiator == "hits"
+
+
 def test_unknown_services_are_refused_with_the_installed_list(tmp_path):
     c = load_compose(write(tmp_path, "services: {tracker2: {}}\n"))
     with pytest.raises(ComposeError, match="unknown service 'tracker2'; installed: a, b"):
