@@ -106,7 +106,8 @@ def test_lockstep_runs_and_the_track_of_their_recording_give_the_same_tracks(tmp
     for run in runs:
         assert not any(run.timeouts.values()), run.timeouts
     recording = tmp_path / "a" / "run.mcap"
-    out = track(tmp_path / "track", "--odom-topic", "sensors/odom", recording=recording,
+    out = track(tmp_path / "track", "--odom-topic", "sensors/odom", "--preset", "thesis",
+                recording=recording,
                 scan_topic="sensors/scan", max_scans=None)  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert "did not answer" not in out.stdout
