@@ -675,6 +675,33 @@ class Benchmark:
         }
 
 
+def _part(preset: dict, service: str, key: str) -> str:
+    """The implementation ``preset`` runs for one role of ``service``: its own choice, else the
+    service's default; "-" when the preset does not run the service (the camera-only one)."""
+    if service in preset:
+        return preset[service].get(key, _DEFAULT_PART[key]())
+    return "-" if "camera_blobs" in preset else _DEFAULT_PART[key]()
+
+
+def _default_detector() -> str:
+    from followbot.services.laser_legs.node import LaserLegsSettings
+
+    return LaserLegsSettings().detector
+
+
+def _default_estimator() -> str:
+    from followbot.services.tracker.settings import TrackerSettings
+
+    return TrackerSettings().estimator
+
+
+_DEFAULT_PART = {
+    "detector": _default_detector,
+    "estimator": _default_estimator,
+    "verifier": lambda: _service_default("verifier"),
+}
+
+
 def _service_default(key: str):
     from followbot.appearance import _service_defaults
 
@@ -771,8 +798,8 @@ def summary_rows(result: dict) -> list[tuple[str, dict[str, str]]]:
             rows.append((label, cells))
 
     meta = result["meta"]["presets"]
-    add("laser detector", lambda p: meta[p].get("laser_legs", {}).get("detector", "-"))
-    add("tracker estimator", lambda p: meta[p].get("tracker", {}).get("estimator", "-"))
+    add("laser detector", lambda p: _part(meta[p], "laser_legs", "detector"))
+    add("tracker estimator", lambda p: _part(meta[p], "tracker", "estimator"))
 
     def fp(group: str, key: str, fmt):
         def cell(p: str) -> str:
@@ -812,7 +839,7 @@ def summary_rows(result: dict) -> list[tuple[str, dict[str, str]]]:
         for lag in APPEARANCE_LAGS:
 
             def cell(p, protocol=protocol, lag=lag) -> str:
-                name = meta[p].get("vision_verify", {}).get("verifier")
+                name = _part(meta[p], "vision_verify", "verifier")
                 rows_ = verifiers.get(name, {}).get("results", [])
                 r = next((r for r in rows_ if r["protocol"] == protocol and r["lag"] == lag), None)
                 if r is None:

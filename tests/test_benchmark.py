@@ -60,7 +60,7 @@ DETECTOR_BOUNDS = {
     "bellotto": (0.61, 6.2),
     "derivative": (0.85, 10.5),
     "iav": (0.64, 4.6),
-    "learned": (0.95, 0.5),
+    "learned": (0.95, 0.8),
     "thesis": (0.51, 2.4),
 }
 
