@@ -2,9 +2,10 @@
 
 Measured in one run (``followbot bench`` calls :func:`run`):
 
-* per stage, in one process: the thesis detector, the particle-filter tracker and the
-  controller on the same scans, p50/p99, for 1, 5 and 10 people in view, back to back and
-  with a 25 ms sleep before each scan (as at 40 Hz: caches go cold between scans);
+* per stage, in one process: the defaults' stages (the followbot preset: the learned
+  detector, the particle-filter tracker with the evidence initiator) and the controller on
+  the same scans, p50/p99, for 1, 5 and 10 people in view, back to back and with a 25 ms
+  sleep before each scan (as at 40 Hz: caches go cold between scans);
 * end to end over Zenoh: scan published → the cmd_vel that names its stamp received, p50/p99,
   for 1, 5 and 10 people (three separate processes, four hops);
 * the highest scan rate the processes sustain: every scan answered, p99 under 50 ms (a rate
@@ -25,6 +26,7 @@ import os
 import sys
 import time
 
+import msgspec
 import numpy as np
 
 from followbot.schemas import LaserScan, Odometry
@@ -85,6 +87,13 @@ def _pct(values) -> tuple[float, float]:
     return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
 
+def preset_settings(service: str) -> dict:
+    """The settings the defaults (the followbot preset) give ``service``."""
+    from followbot.services.runtime.compose import PRESETS
+
+    return dict(PRESETS["followbot"].get(service, {}))
+
+
 def in_process(k: int, n: int = 400, gap_s: float = 0.0) -> dict[str, dict[str, float]]:
     """Each stage's time per scan, all in this process, p50/p99 in ms. ``gap_s``: sleep this
     long before each scan, as a process does between scans at 1 / gap_s Hz (its caches go
@@ -92,8 +101,12 @@ def in_process(k: int, n: int = 400, gap_s: float = 0.0) -> dict[str, dict[str, 
     from followbot.services.controller.core import FollowController
     from followbot.services.laser_legs import make_detector
     from followbot.services.tracker.core import Tracker
+    from followbot.services.tracker.settings import TrackerSettings
 
-    detector, tracker, controller = make_detector("thesis"), Tracker(), FollowController()
+    legs = preset_settings("laser_legs")
+    detector = make_detector(legs.get("detector", "thesis"), legs.get("detector_settings"))
+    tracker = Tracker(msgspec.convert(preset_settings("tracker"), TrackerSettings))
+    controller = FollowController()
     times: dict[str, list[float]] = {"laser_legs": [], "tracker": [], "controller": []}
     answer: list[float] = []  # the tracker's step_target alone: what a scan's cmd_vel waits for
     period_ns = 25_000_000
@@ -161,10 +174,12 @@ class Pipeline:
         settings = {"robot": self.robot, "zenoh": {"connect": [self.endpoint]},
                     "log_level": "warning"}  # fmt: skip
         if together:
-            self.stages.start("+".join(self.SERVICES), settings)
+            # one process: each service's own choices in its section of the settings
+            sections = {s: preset_settings(s) for s in self.SERVICES}
+            self.stages.start("+".join(self.SERVICES), {**settings, **sections})
         else:
             for s in self.SERVICES:
-                self.stages.start(s, settings)
+                self.stages.start(s, {**settings, **preset_settings(s)})
 
     def _on_cmd(self, cmd) -> None:
         self.arrivals.setdefault(cmd.stamp_ns, time.monotonic_ns())
