@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 import time
 from pathlib import Path
@@ -102,8 +101,6 @@ SIM_SCENARIOS = (
 )
 
 FOLDS = 4
-#: Labels closer than this are one person (thesis 4.3.3: a leg pair is < 500 mm apart).
-PAIR_M = 0.5
 
 
 class ScanData:
@@ -187,65 +184,6 @@ def noisy(scan, rng: np.random.Generator, noise_m: float):
         range_max_m=scan.range_max_m,
         frame_id=scan.frame_id,
     )
-
-
-def with_twins(scan, legs_xy: np.ndarray, rng: np.random.Generator, lateral_m=(0.45, 1.0)):
-    """``scan`` with a twin of each labelled person beside them, and the labels of both.
-
-    A person is a group of labels within ``PAIR_M`` of each other; its beams are those whose
-    return lies within ``MATCH_RADIUS_M`` of one of its labels. The twin is the same returns
-    turned about the laser by a whole number of beams (same ranges, same beam pattern: a real
-    leg's shape, noise and dropouts) so that it stands ``lateral_m`` to one side at that range;
-    a twin's return replaces a beam's range only where it is nearer (what stands in front still
-    hides it). Twin legs of which fewer than half the returns were written are not labelled.
-    The real leg recordings hold almost no person with another person within 1 m, so without
-    these copies the forest learns "other segments within 1 m: not a leg" (issue 35: people
-    walking side by side in the simulator scored 0.05)."""
-    from followbot.schemas import LaserScan
-
-    r0 = scan.ranges_m().astype(np.float64)
-    n = r0.shape[0]
-    a = float(scan.angle_min_rad) + float(scan.angle_increment_rad) * np.arange(n)
-    ok = np.isfinite(r0) & (r0 > scan.range_min_m) & (r0 < scan.range_max_m)
-    x, y = np.where(ok, r0 * np.cos(a), np.inf), np.where(ok, r0 * np.sin(a), np.inf)
-    r = r0.copy()
-    labels = [legs_xy]
-    used = np.zeros(legs_xy.shape[0], dtype=bool)
-    inc = abs(float(scan.angle_increment_rad))
-    for i in range(legs_xy.shape[0]):
-        if used[i]:
-            continue
-        group = np.hypot(*(legs_xy - legs_xy[i]).T) < PAIR_M
-        used |= group
-        legs = legs_xy[group]
-        near = np.hypot(x[:, None] - legs[:, 0], y[:, None] - legs[:, 1]) < MATCH_RADIUS_M
-        beams = near.any(axis=1).nonzero()[0]
-        if beams.shape[0] == 0:
-            continue
-        rho = float(np.hypot(*legs.mean(axis=0)))
-        shift = round(rng.uniform(*lateral_m) / max(rho, 0.1) / inc) * int(rng.choice((-1, 1)))
-        dest = beams + shift
-        keep = (dest >= 0) & (dest < n)
-        src, dest = beams[keep], dest[keep]
-        nearer = ok[src] & ~(ok[dest] & (r0[dest] <= r0[src]))  # no return there: nothing in front
-        r[dest[nearer]] = r0[src[nearer]]
-        turn = shift * float(scan.angle_increment_rad)
-        c, s_ = math.cos(turn), math.sin(turn)
-        for j in range(legs.shape[0]):
-            mine = near[src, :][:, j]
-            if mine.sum() and nearer[mine].mean() >= 0.5:
-                lx, ly = legs[j]
-                labels.append(np.array([[c * lx - s_ * ly, s_ * lx + c * ly]]))
-    out = LaserScan.from_ranges(
-        r.astype(np.float32),
-        stamp_ns=scan.stamp_ns,
-        angle_min_rad=scan.angle_min_rad,
-        angle_increment_rad=scan.angle_increment_rad,
-        range_min_m=scan.range_min_m,
-        range_max_m=scan.range_max_m,
-        frame_id=scan.frame_id,
-    )
-    return out, np.vstack(labels)
 
 
 def fit(X: np.ndarray, Y: np.ndarray, trees: int, depth: int, leg_prior: float, seed: int):
@@ -562,12 +500,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--augment", type=int, default=2, help="noisy copies of each real scan")
     p.add_argument("--augment-noise-m", type=float, default=0.005)
-    p.add_argument(
-        "--twins",
-        type=int,
-        default=0,
-        help="copies of each labelled scan with a twin of each person beside them (fits only)",
-    )
     p.add_argument("--sim-scans", type=int, default=0, help="scans per simulator scenario")
     p.add_argument(
         "--background-memories",
@@ -604,9 +536,6 @@ def main(argv: list[str] | None = None) -> int:
             aug[k] += [
                 ScanData(noisy(d.scan, rng, args.augment_noise_m), None, s) for d in neg_folds[k]
             ]
-        for _ in range(args.twins):
-            for it in read_positive(TRAIN_POSITIVES[k]):
-                aug[k].append(ScanData(*with_twins(it.scan, it.legs_xy, rng), s))
     sim = simulated(args.sim_scans, s, args.seed) if args.sim_scans else []
     log.info(
         "features of %d scans in %.1f s",
