@@ -83,6 +83,26 @@ def test_it_learns_to_reject_a_lookalike_and_keeps_accepting_the_target():
     assert after[0] - after[1] > before[0] - before[1]
 
 
+def test_a_bystander_seen_while_following_is_told_apart_by_its_nearest_views():
+    # the contrast (nearest bystander views less nearest target views) pushes a lookalike
+    # that was seen as a bystander further below 0.5 than the metric alone does
+    alone = make_verifier("online", {"contrast_scale": 0.0})
+    v = make_verifier("online")
+    frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
+    model = model_of(v, frame, views[0])
+    for _ in range(10):
+        frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
+        model = msgspec.structs.replace(model, features=v.update(frame, views, 0, model))
+    frame, views = frame_of(TARGET, LOOKALIKE)
+    with_contrast = [1.0 - d for d in v.distances(frame, views, model)]
+    metric_only = [1.0 - d for d in alone.distances(frame, views, model)]
+    assert with_contrast[1] < metric_only[1] < 0.5
+    assert with_contrast[0] > 0.5
+    # before any bystander is seen the contrast has nothing to say: the same probabilities
+    first = model_of(v, frame, views[0])
+    assert v.distances(frame, views, first) == alone.distances(frame, views, first)
+
+
 def test_the_output_is_a_probability_and_update_leaves_the_old_model_alone():
     v = make_verifier("online")
     frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
