@@ -46,6 +46,7 @@ from followbot.schemas import TargetModel, Verification, VerifiedCandidate
 from followbot.services.common.geometry import Pose, se2_change, transform_points
 from followbot.services.common.odometry import OdometryBuffer
 
+from .evidence import EVIDENCE
 from .lifecycle import ScanTime, Track, Tracks
 from .retake import RETAKES
 from .search import Search
@@ -92,8 +93,7 @@ class Identity:
         self.history: OrderedDict[int, Scan] = OrderedDict()
         self._pending: list[Verification] = []
         self._model: TargetModel | None = None
-        self._switch: tuple[int, int] = (-1, 0)  # (track preferred by vision, consecutive votes)
-        self._rejects = 0  # consecutive verifications that rejected the target's candidate
+        self._evidence = EVIDENCE[settings.identity.vision_evidence](settings)
         self._confirmed_index = -1  # last scan whose verification accepted the target's candidate
         # scans at which the target missed or had another track within identity.near_guard_m
         self._breaks: deque[int] = deque()
@@ -116,14 +116,14 @@ class Identity:
     def forget_target(self) -> None:
         self.target_id = -1
         self.had_target = False
-        self._switch = (-1, 0)
+        self._evidence.forget()
         self._breaks.clear()
         self._retake.forget()
 
     # ------------------------------------------------------------------ target changes
 
     def set_target(self, tid: int) -> None:
-        self._rejects = 0
+        self._evidence.new_target()
         if self.target_id >= 0 and tid != self.target_id:
             self.target_switches += 1
         if tid != self.target_id:  # the shift is kept for the target only, from now on
@@ -135,7 +135,6 @@ class Identity:
         self._confirmed_index = self.index - 1  # chosen by vision (or a model) just now
         self.had_target = True
         self._search.lost_at = None
-        self._switch = (-1, 0)
 
     def lose_target(self, track: Track, by_laser: bool = False) -> None:
         """The target is lost; ``by_laser``: its track ran out of misses (the laser may re-take
@@ -146,7 +145,7 @@ class Identity:
         else:
             self._retake.forget()
         self.target_id = -1
-        self._switch = (-1, 0)
+        self._evidence.forget()
 
     def prior(self) -> tuple[int, Any] | None:
         """The target's id and a copy of its estimator now (after the prediction, before the
@@ -265,6 +264,7 @@ class Identity:
             # sees no face) is no evidence: after vision_stale_s the laser gates alone
             self.vision_stamp = v.stamp_ns
         held = self.target_id
+        self._evidence.judged(v, scan.assoc, self._tracks.by_id)
         self._judge_target(v, scan)
         if v.chosen < 0:
             return
@@ -273,16 +273,13 @@ class Identity:
         if tid < 0:
             return
         if self.target_id < 0:
-            self._reacquire(tid, chosen.distance, dropped_now=held >= 0)
+            self._reacquire(tid, chosen.distance, v.threshold, dropped_now=held >= 0)
             return
         if tid == self.target_id:
-            self._switch = (-1, 0)
+            self._evidence.chose_target()
             self.vision_sources = True
             return
-        prev, votes = self._switch
-        votes = votes + 1 if prev == tid else 1
-        self._switch = (tid, votes)
-        if votes >= self.settings.identity.switch_votes or self._repairs_split(tid):
+        if self._evidence.prefers(tid, self.target_id) or self._repairs_split(tid):
             self.set_target(tid)
             self.vision_sources = True
 
@@ -297,14 +294,15 @@ class Identity:
             xy = transform_points(xy, scan.pose, pose)
         return self._tracks.nearest(xy[0], self.settings.identity.model_match_m)
 
-    def _reacquire(self, tid: int, distance: float | None, dropped_now: bool) -> None:
+    def _reacquire(
+        self, tid: int, distance: float | None, threshold: float | None, dropped_now: bool
+    ) -> None:
         """Vision chose track ``tid`` while there is no target: (re-)acquisition by
-        appearance. A target lost earlier is re-taken only on a close enough match
-        (identity.reacquire_max_distance) and where it can be (search.py); one dropped by this very
-        verification is a switch, taken anywhere."""
-        limit = self.settings.identity.reacquire_max_distance
-        if self.had_target and limit is not None and not distance <= limit:
-            return  # re-acquisition asks for a closer match than verification does
+        appearance. A target lost earlier is re-taken only on enough evidence (evidence.py:
+        identity.reacquire_max_distance, or evidence_reacquire) and where it can be
+        (search.py); one dropped by this very verification is a switch, taken anywhere."""
+        if self.had_target and not self._evidence.may_reacquire(tid, distance, threshold):
+            return  # re-acquisition asks for more than verification does
         if not dropped_now and self.had_target and not self._search.may_retake(tid, distance):
             return
         self.set_target(tid)
@@ -329,7 +327,7 @@ class Identity:
                 tid = scan.assoc.get(c.index, -1)
                 if tid >= 0 and c.in_view and c.distance is not None and c.distance > v.threshold:
                     self._search.note_rejection(tid)
-        if self.target_id < 0 or v.threshold is None or not s.identity.reject_votes:
+        if self.target_id < 0 or v.threshold is None or not self._evidence.vetoes:
             return
         mine = [i for i, tid in scan.assoc.items() if tid == self.target_id]
         judged = {c.index: c for c in v.candidates}
@@ -337,16 +335,14 @@ class Identity:
         if not seen or seen[0].distance is None:
             return  # not in view: no evidence either way
         if v.chosen >= 0 and v.candidates[v.chosen].index in mine:
-            self._rejects = 0
+            self._evidence.accepted()
             self._confirmed_index = max(self._confirmed_index, scan.index)
             return
         if seen[0].distance <= v.threshold or not self._rejection_counts(seen[0], v, scan):
             return  # close enough (only another was closer: the switch votes decide)
         if s.identity.rollback:
             self._rollback(v.stamp_ns, scan, (seen[0].x_m, seen[0].y_m))
-        self._rejects += 1
-        if self._rejects >= s.identity.reject_votes:
-            self._rejects = 0
+        if self._evidence.rejected(self.target_id):
             self.target_rejections += 1
             self.lose_target(self._tracks.by_id[self.target_id])
 
@@ -360,7 +356,7 @@ class Identity:
         ):
             self.rejections_near += 1
             return False  # too near for the camera to tell
-        h = s.identity.reject_hysteresis
+        h = self._evidence.hysteresis
         surely = h > 0 and seen.distance <= v.threshold + h
         return not (surely and self._surely_the_target(scan.index))
 

@@ -147,6 +147,26 @@ class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     threshold by more than this, so a target judged around the threshold scan after scan is
     not dropped on every second look. 0: off.
     docs/tracker_log.md: 8 of 76 runs change, none of the sweep's counts."""
+    vision_evidence: Literal["votes", "probability"] = "votes"
+    """How vision's judgements decide the target (evidence.py). ``votes`` (the thesis-era
+    rules, tuned to the histogram verifier's distance): reject_votes, switch_votes,
+    reacquire_max_distance and reject_hysteresis. ``probability`` (for a verifier whose output
+    is a calibrated probability, e.g. ``online``): each track sums the log-odds of vision's
+    judgements of it within +-evidence_cap; the target goes at evidence_veto, vision's choice
+    replaces it at evidence_switch, a lost target is re-taken at evidence_reacquire; the four
+    distance rules above do not apply (reject_votes 0 still turns rejections off)."""
+    evidence_cap: Annotated[float, msgspec.Meta(gt=0, le=20)] = 3.0
+    """``probability``: a track's summed log-odds are held within +-this (p 0.95), so old
+    confirmations do not outweigh fresh rejections."""
+    evidence_veto: Annotated[float, msgspec.Meta(lt=0)] = -2.0
+    """``probability``: the target is dropped once its sum is at or below this (from the cap:
+    four looks at p 0.2, or one at p 0.007)."""
+    evidence_switch: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    """``probability``: the track vision chose replaces the target once its sum is at least
+    this and above the target's (two looks at p 0.75, one at p 0.88)."""
+    evidence_reacquire: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    """``probability``: a lost target is re-taken by vision's choice once that track's sum is
+    at least this."""
     near_guard_m: Annotated[float, msgspec.Meta(ge=0)] = 1.0
     """The target is "surely the one vision last accepted" while its track took a candidate on
     every scan since and no other track came within this distance of it; a target that was

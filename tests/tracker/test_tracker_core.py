@@ -1288,6 +1288,66 @@ def test_a_false_rejection_after_a_jump_costs_a_scan_or_two_of_coasting():
     assert math.hypot(target.x_m - 2.25, target.y_m) < 0.1
 
 
+def judged(stamp_ns, xy, p):
+    """Vision saw one candidate at ``xy`` and gave it probability ``p`` of being the target."""
+    v = rejection(stamp_ns, xy, distance=1.0 - p, threshold=0.5)
+    v.candidates[0].probability = p
+    return v
+
+
+@pytest.mark.parametrize(("p", "looks"), [(0.005, 1), (0.2, 2), (0.4, 5), (0.6, None)])
+def test_with_probability_evidence_a_strong_rejection_drops_the_target_sooner(p, looks):
+    """identity.vision_evidence: probability -- the target's log-odds sum over vision's looks:
+    one look at p 0.005 (-5.3) drops it at once, p 0.2 (-1.4 each) after two, p 0.4 (-0.4
+    each) after five, p 0.6 never (votes drop it after reject_votes = 2 of the first three)."""
+    settings = TrackerSettings(
+        identity=IdentitySettings(vision_evidence="probability", rollback=False)
+    )
+    trk = Tracker(settings)
+    trk.set_vision_alive(True)
+    still_robot(trk, 0)
+    trk.set_target_model(model(0, 2.0, 0.0))
+    trk.step(cands(0, (2.0, 0.0)))
+    statuses = []
+    for k in range(1, 8):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        statuses.append(target.status)
+        trk.add_verification(judged(k * SCAN_NS, (2.0, 0.0), p))
+    if looks is None:
+        assert "lost" not in statuses
+    else:  # the looks at scans 1..n are applied at steps 2..n+1
+        assert statuses[:looks] == ["tracking"] * looks and statuses[looks] == "lost"
+
+
+def test_with_probability_evidence_a_verifier_without_probabilities_counts_as_votes():
+    """A verifier that gives no probability counts as p 0.75 / 0.25 by its threshold: two
+    rejections in a row drop the target, as identity.reject_votes = 2 does."""
+    settings = TrackerSettings(
+        identity=IdentitySettings(vision_evidence="probability", rollback=False)
+    )
+    _, _, statuses = rejected_every_scan(settings, (2.0, 0.0), 1.2, 4)
+    assert statuses[:2] == ["tracking"] * 2 and statuses[2] == "lost"
+
+
+def test_with_probability_evidence_confirmations_are_capped():
+    """Many confident looks do not make the target unshakeable: from the cap (+3), four
+    looks at p 0.2 drop it."""
+    trk = following_at_two(identity=IdentitySettings(vision_evidence="probability", rollback=False))
+    ps = [0.99] * 10 + [0.2] * 4
+    statuses = []
+    for k, p in enumerate(ps, start=1):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        statuses.append(target.status)
+        trk.add_verification(judged(k * SCAN_NS, (2.0, 0.0), p))
+    still_robot(trk, 15 * SCAN_NS)
+    target, _ = trk.step(cands(15 * SCAN_NS, (2.0, 0.0)))
+    statuses.append(target.status)
+    # the rejections at scans 11..14 are applied at steps 12..15
+    assert statuses[:14] == ["tracking"] * 14 and statuses[14] == "lost"
+
+
 def test_a_confirmed_target_is_kept_and_rejections_need_to_be_consecutive():
     trk = following_at_two(identity=IdentitySettings(reject_votes=2, rollback=False))
     for k, d in enumerate([1.2, 0.3, 1.2, 0.3, 1.2, 0.3], start=1):  # never two in a row
