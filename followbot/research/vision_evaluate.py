@@ -4,6 +4,8 @@
         [--scenario NAME ...] [--threshold D] [--json FILE]
     python -m followbot.research.vision_evaluate calibrate [--verifier NAME ...]
     python -m followbot.research.vision_evaluate vtest PATH/TO/vtest.avi
+    python -m followbot.research.vision_evaluate realistic [--verifier NAME ...]
+        [--scenario lookalikes] [--without PART ...] [--json FILE]
 
 ``sim``: two test scenes. In both the robot stands still until the model is built from frame
 and laser differencing (thesis 4.2). In ``thesis_5_2_4_two_people`` a follower driven by
@@ -27,6 +29,12 @@ of its candidates projects into the image):
 ``calibrate``: the rejection threshold of a verifier from *training* scenes
 (:data:`CALIBRATION_SCENARIOS`, not the test scenes above), see :func:`calibrate`.
 
+``realistic``: ``followbot appearance``'s figures on a simulated scene (default
+``lookalikes``): the robot follows its target on ground truth 2 m behind, every person in view
+is boxed from the true geometry, and the frames and boxes go through the footage measurement
+(:func:`evaluate_realistic`; docs/vision_verify.md "Simulator and pets09 side by side").
+``--without`` switches one part of the scene's realism off (:data:`REALISM`).
+
 ``vtest``: OpenCV's pedestrian clip (Debian's opencv-doc, examples/data/vtest.avi). People are
 boxed by frame differencing (the thesis's smoothing and threshold, then connected blobs), each
 box is tracked to the next frame by overlap, and the histogram distance is reported for the
@@ -45,7 +53,17 @@ from dataclasses import dataclass, field
 import msgspec
 import numpy as np
 
-__all__ = ["SimScore", "evaluate_sim", "evaluate_vtest", "main"]
+__all__ = [
+    "REALISM",
+    "SimScore",
+    "evaluate_realistic",
+    "evaluate_sim",
+    "evaluate_vtest",
+    "follow_truth",
+    "main",
+    "realistic_frames",
+    "sim_boxes",
+]
 
 _NS = 1_000_000_000
 
@@ -114,8 +132,9 @@ class SimScore:
         }
 
 
-def _follow(sim, truth, target_id: int) -> None:
-    """Thesis 3.7 control on the true target position (a perfect tracker's estimate)."""
+def follow_truth(sim, truth, target_id: int, stop_m: float = 1.2) -> None:
+    """Thesis 3.7 control on the true target position (a perfect tracker's estimate): stop
+    within ``stop_m`` (thesis 1.2 m), 0.5 m/s up to 0.3 m beyond it, else 0.75 m/s."""
     person = next((p for p in truth.people if p.id == target_id), None)
     if person is None:
         sim.command_velocity(0.0, 0.0)
@@ -123,7 +142,7 @@ def _follow(sim, truth, target_id: int) -> None:
     x, y = person.robot_x_m, person.robot_y_m
     r, theta = math.hypot(x, y), math.atan2(y, x)
     w = 0.0 if abs(theta) < math.radians(6) else max(-1.745, min(1.745, 1.5 * theta))
-    v = 0.0 if r < 1.2 else (0.5 if r <= 1.5 else 0.75)  # thesis 3.7: 1.2 / 1.5 m, 0.75 m/s
+    v = 0.0 if r < stop_m else (0.5 if r <= stop_m + 0.3 else 0.75)  # thesis 3.7
     sim.command_velocity(v, w)
     sim.command_pan(theta)
 
@@ -207,7 +226,7 @@ def evaluate_sim(
         for stamp, cands, tr in pending:
             score.scans += 1
             if model is not None and follow:
-                _follow(sim, tr, target_id)
+                follow_truth(sim, tr, target_id)
             if model is None or image is None or abs(image.stamp_ns - stamp) > 0.06 * _NS:
                 continue
             score.scans_judged += 1
@@ -291,6 +310,112 @@ def _score_scan(score: SimScore, j, xy, truth, target_id: int, threshold) -> Non
             who = owners[without]
             by = score.hidden_chosen_by_no_threshold
             by[who] = by.get(who, 0) + 1
+
+
+# --------------------------------------------------------------------------- realistic
+
+#: What ``realistic --without`` can switch off in the scenario, and how.
+REALISM = {
+    "motion_blur": ("camera", {"exposure_ms": 0.0}),
+    "softness": ("camera", {"optics_blur_px": 0.0}),
+    "jpeg": ("camera", {"jpeg_quality": None}),
+    "noise": ("camera", {"noise_std": 0.0}),
+    "shade": ("world", {"light_zones": []}),
+    "lighting_change": ("scenario", {"lighting": []}),
+    "lookalikes": ("people", {}),
+}
+
+
+def _without(spec, parts: list[str]):
+    """``spec`` with the named parts of :data:`REALISM` switched off (lookalikes: dressed as
+    pedestrians instead, each by their own draw)."""
+    for part in parts:
+        where, changes = REALISM[part]
+        if where == "scenario":
+            spec = msgspec.structs.replace(spec, **changes)
+        elif where == "people":
+            people = [
+                msgspec.structs.replace(
+                    p, dress=msgspec.structs.replace(p.dress, style="pedestrian", of=None)
+                )
+                if p.dress is not None and p.dress.style == "lookalike"
+                else p
+                for p in spec.people
+            ]
+            spec = msgspec.structs.replace(spec, people=people)
+        else:
+            sub = msgspec.structs.replace(getattr(spec, where), **changes)
+            spec = msgspec.structs.replace(spec, **{where: sub})
+    return spec
+
+
+def sim_boxes(sim) -> list:
+    """Every person's whole-body box (footage ``Box``, unclipped) in the simulator's camera
+    view now: in front of the camera, the body centre's column in the image and not behind
+    a wall (``CameraModel.sees`` at 1 m)."""
+    from followbot.services.vision_verify.footage import Box
+
+    cam, pose, pan = sim.camera, sim.robot.pose, sim.robot.pan_rad
+    out = []
+    for p, st in zip(sim.people, sim.people_states(), strict=True):
+        rect = cam.person_box(pose, pan, st, p.spec.appearance)
+        if rect is not None and cam.sees(pose, pan, st.position, 1.0):
+            x0, y0, x1, y1 = rect
+            out.append(Box(p.id, x0, y0, x1 - x0, y1 - y0))
+    return out
+
+
+def realistic_frames(scenario: str, *, without: list[str] = (), stop_m: float = 2.0):
+    """The scenario's frames with true person boxes, (index, BGR, boxes), while the robot
+    follows the target on ground truth (:func:`follow_truth` at ``stop_m``); and the number of
+    frames it will yield."""
+    from followbot.schemas import GroundTruth, Image
+    from followbot.services.sim.scenario import load_builtin
+    from followbot.services.sim.simulation import Simulation
+
+    spec = _without(load_builtin(scenario), list(without))
+    sim = Simulation(spec)
+    n = math.floor(spec.duration_s * spec.camera.rate_hz - 1e-9) + 1
+
+    def frames():
+        k = 0
+        while not sim.finished and k < n:
+            for m in sim.tick():
+                if isinstance(m, Image) and k < n:
+                    yield k, m.pixels().copy(), sim_boxes(sim)
+                    k += 1
+                elif isinstance(m, GroundTruth):
+                    follow_truth(sim, m, sim.target_id, stop_m)
+
+    return frames(), n
+
+
+def evaluate_realistic(
+    verifier_name: str,
+    *,
+    scenario: str = "lookalikes",
+    without: list[str] = (),
+    lags: tuple[int, ...] = (25, 100),
+    stop_m: float = 2.0,
+    min_visible: float = 0.5,
+) -> dict:
+    """``followbot appearance``'s figures on the simulator: the scenario rendered while the
+    robot follows its target, each visible person boxed from the true geometry, every person
+    a choice as on footage (docs/vision_verify.md "Simulator and pets09 side by side")."""
+    from followbot.services.vision_verify.footage import evaluate_frames
+    from followbot.services.vision_verify.verifiers import make_verifier
+
+    unknown = sorted(set(without) - set(REALISM))
+    if unknown:
+        raise ValueError(f"unknown --without {unknown}; choose from {sorted(REALISM)}")
+    frames, n = realistic_frames(scenario, without=list(without), stop_m=stop_m)
+    report = evaluate_frames(
+        frames, f"sim:{scenario}", make_verifier(verifier_name), lags=lags, end=n,
+        min_visible=min_visible,
+    )  # fmt: skip
+    out = report.summary()
+    out["without"] = list(without)
+    return out
 
 
 # --------------------------------------------------------------------------- calibration
@@ -445,6 +570,19 @@ def main(argv: list[str] | None = None) -> int:
         "follows), e.g. the calibration scenes thesis_5_2_4_side_by_side and "
         "thesis_5_2_4_turn_apart, or thesis_5_2_4_two_people_swapped",
     )
+    r = sub.add_parser(
+        "realistic", help="followbot appearance's figures on a realistic simulated scene"
+    )
+    r.add_argument("--verifier", action="append", default=[])
+    r.add_argument("--scenario", default="lookalikes")
+    r.add_argument("--lags", default="25,100", help="frames between model and choice")
+    r.add_argument(
+        "--without", action="append", default=[], choices=sorted(REALISM),
+        help="switch one part of the scene's realism off (repeatable)",
+    )  # fmt: skip
+    r.add_argument("--stop-m", type=float, default=2.0, help="the follower's distance (2.0)")
+    r.add_argument("--min-visible", type=float, default=0.5)
+    r.add_argument("--json", help="write the figures here")
     c = sub.add_parser("calibrate", help="rejection thresholds from the training scenes")
     c.add_argument("--verifier", action="append", default=[])
     v = sub.add_parser("vtest", help="histograms on OpenCV's vtest.avi")
@@ -456,6 +594,8 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(out, sys.stdout, indent=2)
         print()
         return 0
+    if args.cmd == "realistic":
+        return _realistic(args)
     if args.cmd == "calibrate":
         for name in args.verifier or ["histogram", "meanshift"]:
             print(json.dumps(calibrate(name)), flush=True)
@@ -477,6 +617,24 @@ def main(argv: list[str] | None = None) -> int:
                 r["note"] = "calibration (training) scene of the thresholds"
             results.append(r)
             print(json.dumps(r), flush=True)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=2)
+    return 0
+
+
+def _realistic(args) -> int:
+    from followbot.appearance import format_table
+
+    lags = tuple(int(t) for t in args.lags.split(","))
+    results = []
+    for name in args.verifier or ["histogram", "online"]:
+        out = evaluate_realistic(
+            name, scenario=args.scenario, without=args.without, lags=lags,
+            stop_m=args.stop_m, min_visible=args.min_visible,
+        )  # fmt: skip
+        results.append(out)
+        print(format_table(out) + "\n", flush=True)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=2)

@@ -22,6 +22,21 @@ ellipses, with optional stripes or checks. Everything is sorted far to near and 
 (painter's algorithm). Brightness is scaled by the lighting gain and sensor noise is added from
 a bank of pre-drawn noise frames at a random offset (drawing 230 000 normals per frame would
 take longer than the whole render).
+
+Beyond that, each off by default (docs/realism.md "Camera" says what real cameras do):
+
+* **Shade**: a person is painted with the lighting gain times the world's light zones at their
+  body centre (``StaticWorld.light_at``).
+* **Motion blur** (``exposure_ms``): the frame's stamp is the middle of the exposure. A person
+  moves in the image by their velocity less the camera's (the robot's travel) times the
+  exposure; they are painted sharp over a snapshot of what lay behind them, then the painted
+  pixels (what changed) and their coverage are both smeared with a line kernel of that
+  length and direction and laid back over the snapshot (a smeared person is see-through at
+  their edges, as on film). The camera's turn (robot and pan) then smears the whole frame
+  sideways by f x turn rate x exposure pixels (forward travel's zoom blur is left out: under a
+  pixel at the image centre, ~2 px at the edges at 0.75 m/s and 20 ms).
+* **Softness** (``optics_blur_px``): a Gaussian blur before the noise (lens, demosaicing).
+* **Compression** (``jpeg_quality``): a JPEG round trip after the noise.
 """
 
 from __future__ import annotations
@@ -36,7 +51,7 @@ from .people import PersonState
 from .scenario import AppearanceSpec, CameraSpec
 from .world import StaticWorld, rgb_to_bgr
 
-__all__ = ["PIECE_M", "CameraModel"]
+__all__ = ["PIECE_M", "CameraModel", "CameraMotion"]
 
 #: Longest wall piece drawn as one quad, m.
 PIECE_M = 0.5
@@ -49,6 +64,15 @@ _LIGHT = np.array([math.cos(0.6), math.sin(0.6)])
 
 def _shade(bgr: tuple[int, int, int] | np.ndarray, k: float) -> tuple[int, int, int]:
     return (min(255, int(bgr[0] * k)), min(255, int(bgr[1] * k)), min(255, int(bgr[2] * k)))
+
+
+class CameraMotion(NamedTuple):
+    """How the camera moves while a frame is exposed (world frame)."""
+
+    vx_mps: float
+    vy_mps: float
+    turn_radps: float
+    """The camera's turn rate: the robot's plus the pan unit's."""
 
 
 def _far_first(job: tuple) -> tuple[float, int]:
@@ -183,12 +207,14 @@ class CameraModel:
         people: list[tuple[PersonState, AppearanceSpec, float]],
         gain: float,
         rng: np.random.Generator,
+        motion: CameraMotion | None = None,
     ) -> np.ndarray:
         """One HxWx3 BGR uint8 frame.
 
-        ``people`` holds (state, appearance, leg radius) per person; ``gain`` scales brightness.
+        ``people`` holds (state, appearance, leg radius) per person; ``gain`` scales brightness;
+        ``motion`` (None: still) makes the motion blur when the spec has an exposure.
         """
-        w, h = self.width, self.height
+        w = self.width
         cam = self.camera_pose(robot_pose, pan_rad)
         img = self._background(gain).copy()
 
@@ -209,12 +235,25 @@ class CameraModel:
             elif kind == 1:
                 self._draw_cylinder(img, data, gain)
             else:
-                self._draw_person(img, cam, data, gain)
+                self._draw_person_blurred(img, cam, data, gain, motion)
+        return self._finish(img, motion, rng)
 
+    def _finish(self, img: np.ndarray, motion: CameraMotion | None, rng) -> np.ndarray:
+        """What the camera does to the scene: turn blur, softness, noise, compression."""
+        spec, h, w = self.spec, self.height, self.width
+        if spec.exposure_ms > 0 and motion is not None:
+            smear = self.focal_px * abs(motion.turn_radps) * spec.exposure_ms * 1e-3
+            if smear >= 0.5:
+                img = cv2.filter2D(img, -1, _line_kernel(smear, 0.0))
+        if spec.optics_blur_px > 0:
+            img = cv2.GaussianBlur(img, (0, 0), spec.optics_blur_px)
         if self._noise is not None:
             k = int(rng.integers(_NOISE_BANK))
             dy, dx = (int(v) for v in rng.integers(_NOISE_PAD, size=2))
             img = cv2.add(img, self._noise[k, dy : dy + h, dx : dx + w], dtype=cv2.CV_8U)
+        if spec.jpeg_quality is not None:
+            _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality])
+            img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
         return img
 
     def _background(self, gain: float) -> np.ndarray:
@@ -315,6 +354,73 @@ class CameraModel:
             cv2.rectangle(img, pt1, pt2, colour, -1, cv2.LINE_8, 4)
 
     # people -----------------------------------------------------------------
+
+    def _draw_person_blurred(self, img, cam, data, gain, motion: CameraMotion | None) -> None:
+        """Paint one person in their light, smeared by their image motion (module docstring)."""
+        _, state, look, _ = data
+        gain *= self.world.light_at(float(state.position[0]), float(state.position[1]))
+        smear = self._person_smear(cam, state, look, motion)
+        if smear is None:
+            self._draw_person(img, cam, data, gain)
+            return
+        du, dv = smear
+        box = self._box(self._person_view(cam, state, look.height_m), look)
+        pad = 0.5 * max(abs(du), abs(dv)) + 2.0
+        x0, y0 = max(0, math.floor(box[0] - pad)), max(0, math.floor(box[1] - pad))
+        x1 = min(self.width, math.ceil(box[2] + pad))
+        y1 = min(self.height, math.ceil(box[3] + pad))
+        if x1 <= x0 or y1 <= y0:
+            return
+        before = img[y0:y1, x0:x1].copy()
+        self._draw_person(img, cam, data, gain)
+        _smear(img[y0:y1, x0:x1], before, _line_kernel(du, dv))
+
+    def _person_smear(self, cam, state: PersonState, look: AppearanceSpec, motion):
+        """(du, dv) pixels the person's hip moves in the image during the exposure, from
+        their velocity less the camera's; None: no blur (no exposure, or under half a px)."""
+        if self.spec.exposure_ms <= 0:
+            return None
+        t = self.spec.exposure_ms * 1e-3
+        vx, vy = float(state.velocity[0]), float(state.velocity[1])
+        if motion is not None:
+            vx, vy = vx - motion.vx_mps, vy - motion.vy_mps
+        c, s = math.cos(cam[2]), math.sin(cam[2])
+        dx, dy = float(state.position[0]) - cam[0], float(state.position[1]) - cam[1]
+        x0, y0 = c * dx + s * dy, -s * dx + c * dy
+        x1, y1 = x0 - (c * vx + s * vy) * t, y0 - (-s * vx + c * vy) * t  # at the start
+        if x0 < 0.3 or x1 < 0.3:
+            return None
+        z = 0.52 * look.height_m
+        du = self.column(x0, y0) - self.column(x1, y1)
+        dv = self.row(x0, z) - self.row(x1, z)
+        return (du, dv) if math.hypot(du, dv) >= 0.5 else None
+
+    def person_box(
+        self,
+        robot_pose: tuple[float, float, float],
+        pan_rad: float,
+        state: PersonState,
+        look: AppearanceSpec,
+    ) -> tuple[float, float, float, float] | None:
+        """The person's whole body in the image (x0, y0, x1, y1 pixels, unclipped: it may
+        reach past the border), as drawn without blur; None when not in front of the camera."""
+        cam = self.camera_pose(robot_pose, pan_rad)
+        view = self._person_view(cam, state, look.height_m)
+        if view.body[0] < 0.3 or view.body[0] > self.spec.max_range_m:
+            return None
+        return self._box(view, look)
+
+    def _box(self, view: _PersonView, look: AppearanceSpec) -> tuple[float, float, float, float]:
+        torso = self._torso(view, look)
+        reach = torso.half_w + 0.06 * view.px_per_m * 1.1  # the sleeves
+        us, vs = [torso.u0 - reach, torso.u0 + reach], [self.row(view.body[0], look.height_m)]
+        for foot in view.legs:
+            if foot[0] >= 0.2:
+                u = self.column(foot[0], foot[1])
+                r = self.focal_px * 0.08 / foot[0]
+                us += [u - r, u + r]
+                vs.append(self.row(foot[0], 0.0))
+        return (min(us), min(vs), max(us), max(vs))
 
     def _draw_person(self, img, cam, data, gain) -> None:
         """Paint one person: the quads of legs and upper body back to front (converted to
@@ -512,6 +618,34 @@ class _Torso(NamedTuple):
     waist: float
     v_shoulder: float
     v_hip: float
+
+
+def _line_kernel(du: float, dv: float) -> np.ndarray:
+    """A normalised kernel that spreads a pixel evenly along the segment (-du/2, -dv/2) ..
+    (du/2, dv/2) about its centre (bilinear weights, so sub-pixel lengths count)."""
+    half = math.ceil(0.5 * max(abs(du), abs(dv))) + 1
+    k = np.zeros((2 * half + 1, 2 * half + 1), dtype=np.float32)
+    n = max(2, math.ceil(4 * math.hypot(du, dv)) + 1)
+    for t in np.linspace(-0.5, 0.5, n).tolist():
+        x, y = half + t * du, half + t * dv
+        ix, iy = math.floor(x), math.floor(y)
+        fx, fy = x - ix, y - iy
+        k[iy, ix] += (1 - fx) * (1 - fy)
+        k[iy, ix + 1] += fx * (1 - fy)
+        k[iy + 1, ix] += (1 - fx) * fy
+        k[iy + 1, ix + 1] += fx * fy
+    return k / k.sum()
+
+
+def _smear(region: np.ndarray, before: np.ndarray, kernel: np.ndarray) -> None:
+    """Smear what was painted over ``before`` in ``region`` (in place): the changed pixels and
+    their coverage are blurred with ``kernel`` and laid over ``before``."""
+    cover = np.any(region != before, axis=2).astype(np.float32)
+    fg = region.astype(np.float32) * cover[..., None]
+    fg = cv2.filter2D(fg, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    cover = cv2.filter2D(cover, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    out = fg + (1.0 - cover)[..., None] * before.astype(np.float32)
+    region[:] = np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
 def _across(pt, r: float):

@@ -74,6 +74,8 @@ class DiffDriveRobot:
         self.v_mps = 0.0
         self.w_radps = 0.0
         self.pan_rad = 0.0
+        self.pan_rate_radps = 0.0
+        """The pan unit's turn rate over the last step."""
         self._v_max = spec.max_speed_mps
         self._w_max = math.radians(spec.max_turn_deg_s)
         self._w_acc = math.radians(spec.max_turn_accel_deg_s2)
@@ -120,7 +122,9 @@ class DiffDriveRobot:
         goal_w = self.cmd_w if live else 0.0
         self.v_mps = _approach(self.v_mps, goal_v, self.spec.max_accel_mps2 * dt_s)
         self.w_radps = _approach(self.w_radps, goal_w, self._w_acc * dt_s)
-        self.pan_rad = _approach(self.pan_rad, self.cmd_pan, self._pan_rate * dt_s)
+        pan = _approach(self.pan_rad, self.cmd_pan, self._pan_rate * dt_s)
+        self.pan_rate_radps = (pan - self.pan_rad) / dt_s
+        self.pan_rad = pan
 
         v, w, th = self.v_mps, self.w_radps, self.yaw_rad
         if abs(w) > 1e-9:

@@ -31,8 +31,10 @@ __all__ = [
     "BoxSpec",
     "CameraSpec",
     "CircleSpec",
+    "DressSpec",
     "GaitSpec",
     "LaserSpec",
+    "LightZoneSpec",
     "LightingKey",
     "MeasuredLaserSpec",
     "OdometrySpec",
@@ -96,12 +98,26 @@ class BoxSpec(_Spec):
     colour_rgb: RGB = (150, 110, 60)
 
 
+class LightZoneSpec(_Spec):
+    """A floor rectangle (axis-aligned) where people are lit by ``gain`` times the scene's
+    lighting: shade under a gallery (< 1), sun from a window (> 1). The camera paints a person
+    by the zones at their body centre; across ``edge_m`` outside the rectangle the gain blends
+    linearly back to 1 (a soft shadow edge). Walls, floor and furniture are not changed."""
+
+    centre: Point
+    size_m: tuple[Pos, Pos]
+    gain: Annotated[float, msgspec.Meta(ge=0.0, le=4.0)]
+    edge_m: NonNeg = 0.5
+
+
 class WorldSpec(_Spec):
     walls: list[WallSpec] = []
     circles: list[CircleSpec] = []
     boxes: list[BoxSpec] = []
     floor_rgb: RGB = (120, 118, 112)
     ceiling_rgb: RGB = (225, 225, 220)
+    light_zones: list[LightZoneSpec] = []
+    """Where people stand in shade or in light (camera only; docs/realism.md "Camera")."""
 
 
 # --------------------------------------------------------------------------- people
@@ -161,6 +177,21 @@ class AppearanceSpec(_Spec):
     shoulder_width_m: Annotated[float, msgspec.Meta(ge=0.2, le=0.7)] = 0.44
 
 
+class DressSpec(_Spec):
+    """Clothes drawn at random (services/sim/dress.py) instead of ``appearance``'s colours,
+    from the scenario's seed and the person's id (so adding a person changes nobody else)."""
+
+    style: Literal["pedestrian", "lookalike"]
+    """pedestrian: a plausible everyday outfit (dark, grey and blue tops; dark or blue
+    trousers; docs/realism.md "Camera"), height and build drawn too. lookalike: dressed like
+    person ``of``: each garment's colour moved by a random RGB offset of length
+    ``colour_spread`` x U(0.5, 1), the same pattern; own height, build, skin and hair."""
+    of: Annotated[int, msgspec.Meta(ge=0, le=10_000)] | None = None
+    """lookalike: the id of the person copied (not itself a lookalike)."""
+    colour_spread: Annotated[float, msgspec.Meta(ge=0.0, le=128.0)] = 30.0
+    """lookalike: the largest RGB offset of a garment's colour, grey levels."""
+
+
 class PersonSpec(_Spec):
     id: Annotated[int, msgspec.Meta(ge=0, le=10_000)]
     start: Point
@@ -172,6 +203,8 @@ class PersonSpec(_Spec):
     is_target: bool = False
     gait: GaitSpec = msgspec.field(default_factory=GaitSpec)
     appearance: AppearanceSpec = msgspec.field(default_factory=AppearanceSpec)
+    dress: DressSpec | None = None
+    """Random clothes instead of ``appearance``'s (null: ``appearance`` as written)."""
 
 
 # --------------------------------------------------------------------------- robot, sensors
@@ -299,6 +332,15 @@ class CameraSpec(_Spec):
     """Camera (pan axis) position left of the base origin; ``mount_x_m`` ahead of it."""
     mount_yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
     """The camera's heading at pan 0, counter-clockwise from the base's heading."""
+    exposure_ms: Annotated[float, msgspec.Meta(ge=0.0, le=200.0)] = 0.0
+    """Shutter time: each person is smeared along their image motion during it (their own
+    and the robot's travel), the whole frame along the camera's turn (robot and pan).
+    0: no motion blur (as before this setting). docs/realism.md "Camera"."""
+    optics_blur_px: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] = 0.0
+    """Standard deviation of a Gaussian blur (lens and demosaicing softness), px; 0: none."""
+    jpeg_quality: Annotated[int, msgspec.Meta(ge=1, le=100)] | None = None
+    """Each frame goes through JPEG at this quality after the noise (as a camera streaming
+    MJPEG does); null: no compression."""
 
 
 class LightingKey(_Spec):
@@ -338,6 +380,7 @@ class Scenario(_Spec):
             raise ValueError(f"person ids must be unique, got {ids}")
         if sum(p.is_target for p in self.people) > 1:
             raise ValueError("at most one person may have is_target: true")
+        _check_dress(self.people)
         times = [k.t_s for k in self.lighting]
         if times != sorted(times):
             raise ValueError("lighting keys must be in increasing t_s")
@@ -345,6 +388,30 @@ class Scenario(_Spec):
     @property
     def target_id(self) -> int:
         return next((p.id for p in self.people if p.is_target), -1)
+
+
+def _check_dress(people: list[PersonSpec]) -> None:
+    """A lookalike names another person who is not a lookalike; a pedestrian names nobody."""
+    dress = {p.id: p.dress for p in people}
+    for p in people:
+        d = p.dress
+        if d is None:
+            continue
+        if d.style == "pedestrian" and d.of is not None:
+            raise ValueError(f"person {p.id}: dress style pedestrian takes no `of`")
+        if d.style != "lookalike":
+            continue
+        if d.of is None:
+            raise ValueError(f"person {p.id}: a lookalike needs `of`, the id of the person copied")
+        if d.of == p.id:
+            raise ValueError(f"person {p.id}: a lookalike cannot copy itself")
+        if d.of not in dress:
+            raise ValueError(f"person {p.id}: lookalike of {d.of}, but there is no person {d.of}")
+        other = dress[d.of]
+        if other is not None and other.style == "lookalike":
+            raise ValueError(
+                f"person {p.id}: lookalike of {d.of}, itself a lookalike (copy the original)"
+            )
 
 
 class ScenarioError(ValueError):

@@ -44,11 +44,12 @@ import numpy as np
 from followbot.schemas import GroundTruth, Image, LaserScan, Message, Odometry, PersonTruth
 from followbot.services.common.geometry import wrap_angle
 
-from .camera import CameraModel
+from .camera import CameraModel, CameraMotion
+from .dress import dressed, with_appearance
 from .laser import LaserModel
 from .people import Person, PersonState
 from .robot import DiffDriveRobot
-from .scenario import Scenario
+from .scenario import AppearanceSpec, Scenario
 from .world import StaticWorld
 
 __all__ = ["Simulation"]
@@ -149,7 +150,11 @@ class Simulation:
         self._laser_rng = np.random.default_rng(laser_ss)
         self._camera_rng = np.random.default_rng(camera_ss)
         self.world = StaticWorld.from_spec(scenario.world)
-        self.people = [Person(p) for p in scenario.people]
+        looks = dressed(scenario.people, self.seed)
+        self.people = [
+            Person(p if p.dress is None else with_appearance(p, looks[p.id]))
+            for p in scenario.people
+        ]
         self.target_id = scenario.target_id
         self.robot = DiffDriveRobot(scenario.robot, np.random.default_rng(robot_ss), self.world)
         self.laser = LaserModel(scenario.laser)
@@ -292,9 +297,16 @@ class Simulation:
             (s, p.spec.appearance, p.leg_radius_m)
             for p, s in zip(self.people, self.people_states(), strict=True)
         ]
+        r = self.robot
+        v = r.world_velocity()
+        motion = CameraMotion(float(v[0]), float(v[1]), r.w_radps + r.pan_rate_radps)
         return self.camera.render(
-            self.robot.pose, self.robot.pan_rad, people, self.lighting_gain(), self._camera_rng
+            r.pose, r.pan_rad, people, self.lighting_gain(), self._camera_rng, motion
         )
+
+    def appearance(self, person_id: int) -> AppearanceSpec:
+        """What person ``person_id`` wears (their ``appearance``, or what ``dress`` drew)."""
+        return next(p.spec.appearance for p in self.people if p.id == person_id)
 
     def image(self) -> Image:
         pixels = self.image_pixels()

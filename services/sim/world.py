@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -44,6 +44,8 @@ class StaticWorld:
     circle_colour: np.ndarray
     floor_bgr: tuple[int, int, int]
     ceiling_bgr: tuple[int, int, int]
+    light_zones: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    """(Z, 6) float64 [cx, cy, half_x, half_y, gain, edge_m]: people's light (LightZoneSpec)."""
 
     @classmethod
     def from_spec(cls, spec: WorldSpec) -> StaticWorld:
@@ -88,7 +90,26 @@ class StaticWorld:
             ).reshape(-1, 3),
             floor_bgr=rgb_to_bgr(spec.floor_rgb),
             ceiling_bgr=rgb_to_bgr(spec.ceiling_rgb),
+            light_zones=np.asarray(
+                [
+                    [z.centre[0], z.centre[1], z.size_m[0] / 2, z.size_m[1] / 2, z.gain, z.edge_m]
+                    for z in spec.light_zones
+                ],
+                dtype=np.float64,
+            ).reshape(-1, 6),
         )
+
+    def light_at(self, x_m: float, y_m: float) -> float:
+        """The light zones' gain at a floor point: each zone's gain inside it, blending
+        linearly to 1 over its edge outside; overlapping zones multiply. 1 with no zones."""
+        k = 1.0
+        for cx, cy, hx, hy, gain, edge in self.light_zones.tolist():
+            d = math.hypot(max(abs(x_m - cx) - hx, 0.0), max(abs(y_m - cy) - hy, 0.0))
+            if d <= 0.0:
+                k *= gain
+            elif d < edge:
+                k *= gain + (1.0 - gain) * d / edge
+        return k
 
     def segments_taller_than(self, height_m: float) -> np.ndarray:
         """Segments a sensor at ``height_m`` sees (rows of :attr:`segments`)."""

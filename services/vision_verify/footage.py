@@ -62,6 +62,7 @@ __all__ = [
     "Report",
     "Tally",
     "evaluate",
+    "evaluate_frames",
     "footage_camera",
     "frame_candidates",
     "learn_model",
@@ -630,39 +631,75 @@ def evaluate(
     end = frames[1] if frames[1] is not None else max(boxes.frames) + 1
     if first < 0 or end <= first:
         raise ValueError(f"empty frame range {first}:{end}")
-    rule = FollowRule(adapt_rate, adapt_when, confident_max_distance, confident_margin)
-    run = _Run(verifier, lags, end, rule, on_choice)
     cap = open_video(video)
-    t_start = time.perf_counter()
-    camera, read = None, first  # read: the frame after the last one decoded
     try:
-        for f, bgr in _read_frames(cap, first, end):
-            if camera is None:
-                camera = footage_camera(bgr.shape[1], bgr.shape[0])
-                width, height = bgr.shape[1], bgr.shape[0]
-                if hasattr(verifier, "camera"):
-                    verifier.camera = camera
-            frame = ImageFeatures(bgr)
-            frame.cache["camera"] = camera
-            cands, hidden = frame_candidates(
-                boxes.frames.get(f, []), width, height, min_visible, occlusion
-            )
-            run.counts["boxes"] += len(cands) + hidden
-            run.counts["boxes_not_usable"] += hidden
-            run.frame(f, frame, cands, camera)
-            if on_frame is not None:
-                on_frame(f, first, end)
-            read = f + 1
+        frames_in = ((f, bgr, boxes.frames.get(f, [])) for f, bgr in _read_frames(cap, first, end))
+        report = evaluate_frames(
+            frames_in, str(video), verifier, lags=lags, end=end,
+            min_visible=min_visible, occlusion=occlusion, adapt_rate=adapt_rate,
+            adapt_when=adapt_when, confident_max_distance=confident_max_distance,
+            confident_margin=confident_margin, on_frame=on_frame, on_choice=on_choice,
+        )  # fmt: skip
     finally:
         cap.release()
-    if camera is None:
-        raise FootageError(f"{video}: no frame could be read in {first}:{end}")
+    read = report.frames[1]
     if read < end:
-        run.counts["boxes_after_the_video"] = sum(
+        report.counts["boxes_after_the_video"] = sum(
             len(b) for k, b in boxes.frames.items() if read <= k < end
         )
+    report.frames = (first, read)
+    return report
+
+
+def evaluate_frames(
+    frames: Iterable[tuple[int, np.ndarray, Sequence[Box]]],
+    name: str,
+    verifier: Verifier,
+    *,
+    lags: Iterable[int] = (25, 100),
+    end: int,
+    min_visible: float = 0.5,
+    occlusion: bool = True,
+    adapt_rate: float = 0.02,
+    adapt_when: Literal["always", "confident"] = "always",
+    confident_max_distance: float = 0.4,
+    confident_margin: float = 0.2,
+    on_frame: Callable[[int, int, int], None] | None = None,
+    on_choice: Callable[[Choice], None] | None = None,
+) -> Report:
+    """:func:`evaluate` on frames from anywhere (a video, a simulator): ``frames`` yields
+    (frame index, BGR image, the frame's boxes) in increasing index, the last below ``end``
+    (choices are made only for model frames at least a lag before ``end``); ``name`` names the
+    source in the report."""
+    lags = sorted(set(lags))
+    if not lags or lags[0] < 1:
+        raise ValueError("lags must be whole numbers of frames >= 1")
+    if not 0.0 <= adapt_rate <= 1.0:
+        raise ValueError(f"adapt_rate must be in [0, 1], got {adapt_rate}")
+    rule = FollowRule(adapt_rate, adapt_when, confident_max_distance, confident_margin)
+    run = _Run(verifier, lags, end, rule, on_choice)
+    t_start = time.perf_counter()
+    camera, first, read = None, None, 0
+    for f, bgr, frame_boxes in frames:
+        if camera is None:
+            first = f
+            camera = footage_camera(bgr.shape[1], bgr.shape[0])
+            width, height = bgr.shape[1], bgr.shape[0]
+            if hasattr(verifier, "camera"):
+                verifier.camera = camera
+        frame = ImageFeatures(bgr)
+        frame.cache["camera"] = camera
+        cands, hidden = frame_candidates(frame_boxes, width, height, min_visible, occlusion)
+        run.counts["boxes"] += len(cands) + hidden
+        run.counts["boxes_not_usable"] += hidden
+        run.frame(f, frame, cands, camera)
+        if on_frame is not None:
+            on_frame(f, first, end)
+        read = f + 1
+    if camera is None:
+        raise FootageError(f"{name}: no frame could be read before frame {end}")
     return Report(
-        video=str(video),
+        video=name,
         width=width,
         height=height,
         frames=(first, read),
