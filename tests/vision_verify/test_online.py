@@ -103,6 +103,31 @@ def test_a_bystander_seen_while_following_is_told_apart_by_its_nearest_views():
     assert v.distances(frame, views, first) == alone.distances(frame, views, first)
 
 
+def test_a_person_cut_by_the_image_border_is_judged_on_what_is_seen():
+    # near a robot-height camera the head leaves the image: the patch is then compared with
+    # the same body rows of the model, not stretched over the whole body
+    v = make_verifier("online")
+    frame, views = frame_of(TARGET, OTHER)
+    model = model_of(v, frame, views[0])
+    img = np.full((H, W, 3), 128, dtype=np.uint8)
+    img[0:80, 20:60] = person(*TARGET)[40:120]  # the top third of the person above the image
+    img[0:80, 100:140] = person(*OTHER)[40:120]
+    cut = ImageFeatures(img)
+    body = [(20.0, -40.0, 60.0, 80.0), (100.0, -40.0, 140.0, 80.0)]
+    seen = [
+        View(index=i, x_m=3.0, y_m=0.5 * i, depth_m=3.0, rect=(x0, 0, x0 + 40, 80), body=b)
+        for i, (x0, b) in enumerate(zip((20, 100), body, strict=True))
+    ]
+    stretched = [msgspec.structs.replace(w, body=None) for w in seen]
+    p_seen = [1.0 - d for d in v.distances(cut, seen, model)]
+    p_stretched = [1.0 - d for d in v.distances(cut, stretched, model)]
+    assert p_seen[1] < 0.5 < p_seen[0]
+    assert p_seen[0] > p_stretched[0] + 0.2
+    # under a quarter of the body in the image: not judged
+    sliver = msgspec.structs.replace(seen[0], rect=(20, 0, 60, 20), body=(20.0, -100.0, 60.0, 20.0))
+    assert v.distances(cut, [sliver], model) == [None]
+
+
 def test_the_output_is_a_probability_and_update_leaves_the_old_model_alone():
     v = make_verifier("online")
     frame, views = frame_of(TARGET, LOOKALIKE, OTHER)

@@ -47,6 +47,7 @@ verification carries ``p`` itself too (``VerifiedCandidate.probability``).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import Annotated
 
@@ -143,27 +144,76 @@ _LBP_LUT = np.array(
 _LBP_OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1))
 
 
-def describe_patch(bgr: np.ndarray) -> np.ndarray:
-    """The scaled feature vector (``FEATURE_DIM`` float32) of a BGR patch of a whole person."""
+def describe_patch(bgr: np.ndarray, rows: tuple[int, int] | None = None) -> np.ndarray:
+    """The scaled feature vector (``FEATURE_DIM`` float32) of a BGR patch of a person.
+
+    ``rows``: the patch shows only rows ``rows[0]:rows[1]`` of the person's ``PATCH_H``-row
+    body (the image's border cut the rest, e.g. the head of a person near a robot-height
+    camera); each feature is then taken from the body rows it belongs to, and the features
+    of rows not seen are NaN (None: the whole body)."""
     if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.shape[0] < 2 or bgr.shape[1] < 2:
         raise ValueError(f"expected an h x w x 3 patch of at least 2 x 2 pixels, got {bgr.shape}")
-    small = cv2.resize(bgr, (PATCH_W, PATCH_H), interpolation=cv2.INTER_AREA)
+    r0, r1 = (0, PATCH_H) if rows is None else rows
+    if not 0 <= r0 < r1 <= PATCH_H:
+        raise ValueError(f"rows {rows} are not a span of 0..{PATCH_H}")
+    small = cv2.resize(bgr, (PATCH_W, r1 - r0), interpolation=cv2.INTER_AREA)
+    if r1 - r0 < PATCH_H:  # the rows not seen repeat the nearest seen row (masked below)
+        small = cv2.copyMakeBorder(small, r0, PATCH_H - r1, 0, 0, cv2.BORDER_REPLICATE)
     lab = cv2.cvtColor(small.astype(np.float32) * np.float32(1 / 255), cv2.COLOR_BGR2Lab)
-    centre = lab[:, _CENTRE[0] : _CENTRE[1]]  # the body's columns, less the background's
-    L, ab = centre[..., 0], centre[..., 1:]
-    rows, cols = PATCH_H // STRIPES, _CENTRE[1] - _CENTRE[0]
-    stripes_ab = ab.reshape(STRIPES, rows * cols, 2).mean(axis=1).ravel()
-    L_stripes = L.reshape(STRIPES, rows * cols)
-    mean_L = float(L.mean())
-    stripe_l = L_stripes.mean(axis=1) - mean_L
-    spread = lab[..., 0].reshape(STRIPES, rows * PATCH_W).std(axis=1)
-    # soft colour names: Gaussian membership of each pixel in each prototype
+    seen = np.zeros(PATCH_H, dtype=bool)
+    seen[r0:r1] = True
+    x = np.concatenate([_stripes(lab, seen), _names(lab, seen), _texture(small, seen)]).astype(
+        np.float32
+    )
+    return x * _INV_SCALE
+
+
+def _share(seen: np.ndarray, a: int, b: int) -> float:
+    return float(seen[a:b].mean())
+
+
+def _stripes(lab: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Per stripe the centre columns' mean a*, b*, the mean L* less that of the seen body, the
+    spread of L*; then the seen body's mean L*. A stripe less than half seen is NaN."""
+    rows = PATCH_H // STRIPES
+    c0, c1 = _CENTRE  # the body's columns, less the background's
+    keep = seen.astype(np.float64)
+    # per patch row: sums over the centre columns (a*, b*, L*) and over the whole width (L*, L*^2)
+    centre = lab[:, c0:c1].sum(axis=1, dtype=np.float64) * keep[:, None]
+    L = lab[..., 0].astype(np.float64)
+    whole = np.stack([L.sum(axis=1), (L * L).sum(axis=1)], axis=1) * keep[:, None]
+    n = keep.reshape(STRIPES, rows).sum(axis=1)
+    part = centre.reshape(STRIPES, rows, 3).sum(axis=1)
+    wide = whole.reshape(STRIPES, rows, 2).sum(axis=1)
+    mean_L = float(centre[:, 0].sum() / (keep.sum() * (c1 - c0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = n >= 0.5 * rows
+        per = part / (n * (c1 - c0))[:, None]
+        ab = np.where(ok[:, None], per[:, 1:], np.nan)
+        light = np.where(ok, per[:, 0] - mean_L, np.nan)
+        m1 = wide[:, 0] / (n * PATCH_W)
+        var = np.maximum(wide[:, 1] / (n * PATCH_W) - m1 * m1, 0.0)
+        spread = np.where(ok, np.sqrt(var), np.nan)
+    return np.concatenate([ab.ravel(), light, spread, [mean_L]])
+
+
+def _names(lab: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Soft colour names (Gaussian membership of each pixel in each prototype) as shares over
+    head and shoulders, torso and legs; a part less than half seen is NaN."""
     d2 = ((lab.reshape(-1, 1, 3) - _NAMES_LAB.reshape(1, -1, 3)) ** 2).sum(axis=2)
     m = np.exp(-(d2 - d2.min(axis=1, keepdims=True)) / (2 * _NAME_SIGMA**2))
     m /= m.sum(axis=1, keepdims=True)
     m = m.reshape(PATCH_H, PATCH_W, N_NAMES)
-    names = np.concatenate([m[a:b].mean(axis=(0, 1)) for a, b in PARTS])
-    # uniform LBP on the grey patch (inner pixels)
+    out = np.full((len(PARTS), N_NAMES), np.nan)
+    for k, (a, b) in enumerate(PARTS):
+        if _share(seen, a, b) >= 0.5:
+            out[k] = m[a:b][seen[a:b]].mean(axis=(0, 1))
+    return out.ravel()
+
+
+def _texture(small: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Uniform LBP histograms of the upper and lower halves (inner pixels whose 3 x 3
+    neighbourhood was seen); a half less than half seen is NaN."""
     grey = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY).astype(np.int16)
     centre = grey[1:-1, 1:-1]
     code = np.zeros(centre.shape, dtype=np.uint8)
@@ -172,15 +222,14 @@ def describe_patch(bgr: np.ndarray) -> np.ndarray:
         nb = grey[1 + dy : h - 1 + dy, 1 + dx : w - 1 + dx]
         code |= (nb >= centre).astype(np.uint8) << bit
     u = _LBP_LUT[code]
+    ok = seen[:-2] & seen[1:-1] & seen[2:]  # inner row j is patch row j + 1
     half = u.shape[0] // 2
-    tex = np.concatenate(
-        [
-            np.bincount(u[:half].ravel(), minlength=_LBP_BINS) / max(1, u[:half].size),
-            np.bincount(u[half:].ravel(), minlength=_LBP_BINS) / max(1, u[half:].size),
-        ]
-    )
-    x = np.concatenate([stripes_ab, stripe_l, spread, [mean_L], names, tex]).astype(np.float32)
-    return x * _INV_SCALE
+    out = np.full((2, _LBP_BINS), np.nan)
+    for k, (a, b) in enumerate(((0, half), (half, u.shape[0]))):
+        rows = ok[a:b]
+        if rows.mean() >= 0.5:
+            out[k] = np.bincount(u[a:b][rows].ravel(), minlength=_LBP_BINS) / u[a:b][rows].size
+    return out.ravel()
 
 
 class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -216,6 +265,51 @@ class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 _FEATURES = ("target_views", "state")  # and bystander_views once any is seen
 # state: [target views seen, bystander views seen, bias, w_1 .. w_D]
 _STATE_LEN = 3 + FEATURE_DIM
+# a stored view's features not seen (NaN in memory) travel as 0 with a 0 in its "*_seen" mask
+_SEEN = {"target_views": "target_seen", "bystander_views": "bystander_seen"}
+MIN_BODY_ROWS = PATCH_H // 4
+"""A view showing less than a quarter of the body's rows is not judged."""
+
+
+def _body_rows(rect: Rect, body: tuple[float, float, float, float] | None):
+    """The rows of the ``PATCH_H``-row body that the clipped ``rect`` shows: None (all), a
+    (first, end) span, or False when under ``MIN_BODY_ROWS``."""
+    if body is None:
+        return None
+    top, height = body[1], body[3] - body[1]
+    if not height > 0:
+        return None
+    r0 = min(PATCH_H, max(0, round((rect[1] - top) / height * PATCH_H)))
+    r1 = min(PATCH_H, max(0, round((rect[3] - top) / height * PATCH_H)))
+    if r0 == 0 and r1 == PATCH_H:
+        return None
+    return (r0, r1) if r1 - r0 >= MIN_BODY_ROWS else False
+
+
+def _unpack(features: dict[str, np.ndarray], key: str) -> np.ndarray | None:
+    """A stored bank with NaN where its mask says not seen (None: no such bank)."""
+    bank = features.get(key)
+    if bank is None:
+        return None
+    seen = features.get(_SEEN[key])
+    if seen is None:
+        return bank
+    return np.where(seen.astype(bool), bank, np.float32(np.nan))
+
+
+def _pack(bank: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    seen = ~np.isnan(bank)
+    return np.where(seen, bank, np.float32(0)), seen.astype(np.uint8)
+
+
+def _masked_l1(z: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """sum(w z) over the dimensions seen (not NaN), scaled up to all dimensions' weight, so a
+    partial view is judged on what it shows (last axis: the dimensions)."""
+    seen = ~np.isnan(z)
+    total = float(w.sum())
+    shown = seen @ w
+    out = np.where(seen, z, 0.0) @ w
+    return out * total / np.maximum(shown, 1e-9 * total)
 
 
 class OnlineVerifier:
@@ -233,23 +327,33 @@ class OnlineVerifier:
 
     # ------------------------------------------------------------------ features
 
-    def features(self, frame: ImageFeatures, rect: Rect) -> np.ndarray | None:
-        """The feature vector of ``rect`` in ``frame`` (cached per frame); None when the
-        rectangle has under 2 x 2 pixels inside the image."""
+    def features(self, frame: ImageFeatures, rect: Rect, body=None) -> np.ndarray | None:
+        """The feature vector of ``rect`` in ``frame`` (cached per frame), NaN where the body
+        (``body``: the person's whole rectangle, which the image border may cut) was not
+        seen; None when the rectangle has under 2 x 2 pixels inside the image or shows under
+        a quarter of the body."""
         r = clip_rect(rect, frame.width, frame.height)
         if r is None:
             return None
+        rows = _body_rows(r, body)
+        if rows is False:
+            return None
         cache = frame.cache.setdefault("online_features", {})
-        x = cache.get(r)
+        x = cache.get((r, rows))
         if x is None:
             x0, y0, x1, y1 = r
-            x = cache[r] = describe_patch(frame.bgr[y0:y1, x0:x1])
+            x = cache[r, rows] = describe_patch(frame.bgr[y0:y1, x0:x1], rows)
         return x
+
+    def _view_features(self, frame: ImageFeatures, v: View) -> np.ndarray | None:
+        if not v.ok or v.rect is None:
+            return None
+        return self.features(frame, v.rect, v.body)
 
     # ------------------------------------------------------------------ the Verifier protocol
 
     def learn(self, frame: ImageFeatures, rect: Rect, view: View) -> dict[str, np.ndarray]:
-        x = self.features(frame, rect)
+        x = self.features(frame, rect, view.body)
         if x is None:
             raise ValueError(f"rectangle {rect} has no pixels inside the image")
         state = np.zeros(_STATE_LEN, dtype=np.float32)
@@ -257,7 +361,8 @@ class OnlineVerifier:
         state[2] = self.settings.prior_bias
         state[3:] = self._prior_w
         # no bystander_views until one is seen (an empty array cannot travel)
-        return {"target_views": x.reshape(1, -1).copy(), "state": state}
+        targets, seen = _pack(x.reshape(1, -1))
+        return {"target_views": targets, "target_seen": seen, "state": state}
 
     def describe(self, frame: ImageFeatures, rect: Rect) -> None:
         return None  # no blending: the online model learns through update()
@@ -286,19 +391,25 @@ class OnlineVerifier:
                 raise ValueError(
                     f"{k!r} has shape {a.shape}, expected up to {most} rows of {FEATURE_DIM}"
                 )
+            seen = f.get(_SEEN[k])
+            if seen is not None and (seen.shape != a.shape or seen.dtype != np.uint8):
+                raise ValueError(f"{_SEEN[k]!r} is not a uint8 mask of {k!r}'s shape")
         if state.shape != (_STATE_LEN,):
             raise ValueError(f"'state' has shape {state.shape}, expected ({_STATE_LEN},)")
         if (state[3:] < 0).any():
             raise ValueError("'state' holds negative weights")
 
     def probabilities(self, xs: np.ndarray, features: dict[str, np.ndarray]) -> np.ndarray:
-        """P(target) of each row of ``xs`` under the model ``features``: the metric against
-        the target's mean look, plus, once bystanders are known, the nearest-view contrast."""
-        targets = features["target_views"]
+        """P(target) of each row of ``xs`` (NaN: not seen) under the model ``features``: the
+        metric against the target's mean look, plus, once bystanders are known, the
+        nearest-view contrast."""
+        targets = _unpack(features, "target_views")
         state = features["state"]
         w = state[3:]
-        logit = float(state[2]) - np.abs(xs - targets.mean(axis=0)) @ w
-        bystanders = features.get("bystander_views")
+        with np.errstate(invalid="ignore"):
+            mu = np.nanmean(targets, axis=0) if np.isnan(targets).any() else targets.mean(axis=0)
+        logit = float(state[2]) - _masked_l1(np.abs(xs - mu), w)
+        bystanders = _unpack(features, "bystander_views")
         s = self.settings
         if bystanders is not None and len(bystanders) and s.contrast_scale > 0:
             near_t = _nearest(xs, targets, w, s.neighbours)
@@ -313,7 +424,7 @@ class OnlineVerifier:
             raise ValueError("the model has no target_views/state features (not an online model)")
         xs, where = [], []
         for i, v in enumerate(views):
-            x = self.features(frame, v.rect) if v.ok and v.rect is not None else None
+            x = self._view_features(frame, v)
             if x is not None:
                 xs.append(x)
                 where.append(i)
@@ -333,43 +444,45 @@ class OnlineVerifier:
         view in view as a bystander (a new dict; the model's arrays are not changed). None
         when the target's view has no pixels."""
         tv = views[target]
-        x_t = self.features(frame, tv.rect) if tv.rect is not None else None
+        x_t = self.features(frame, tv.rect, tv.body) if tv.rect is not None else None
         if x_t is None:
             return None
         f = model.features
         state = f["state"].copy()
         s = self.settings
-        targets, n_t = _reservoir(f["target_views"], x_t[None], int(state[0]), s.target_views)
+        targets, n_t = _reservoir(
+            _unpack(f, "target_views"), x_t[None], int(state[0]), s.target_views
+        )
         others = [
             x
             for i, v in enumerate(views)
-            if i != target and v.ok and v.rect is not None
-            for x in [self.features(frame, v.rect)]
+            if i != target
+            for x in [self._view_features(frame, v)]
             if x is not None
         ]
-        bystanders = f.get("bystander_views", np.zeros((0, FEATURE_DIM), np.float32))
+        bystanders = _unpack(f, "bystander_views")
+        if bystanders is None:
+            bystanders = np.zeros((0, FEATURE_DIM), np.float32)
         n_b = int(state[1])
         if others:
             bystanders, n_b = _reservoir(bystanders, np.stack(others), n_b, s.bystander_views)
         state[0], state[1] = n_t, n_b
-        learnt = {"target_views": targets, "state": state}
+        packed, seen = _pack(targets)
+        learnt = {"target_views": packed, "target_seen": seen, "state": state}
         if len(bystanders):
             state[2], state[3:] = self._fit(targets, bystanders, state[2], state[3:])
-            learnt["bystander_views"] = bystanders
+            learnt["bystander_views"], learnt["bystander_seen"] = _pack(bystanders)
         return learnt
 
     def _fit(
         self, targets: np.ndarray, bystanders: np.ndarray, bias: float, w: np.ndarray
     ) -> tuple[float, np.ndarray]:
         """Class-balanced logistic regression on z = |x - mu|, warm-started at (bias, w),
-        pulled towards the prior, weights kept non-negative (projected gradient descent)."""
+        pulled towards the prior, weights kept non-negative (projected gradient descent).
+        A difference not seen (NaN) is filled with its class's mean difference: it pulls the
+        weights neither way."""
         s = self.settings
-        n = len(targets)
-        total = targets.sum(axis=0)
-        # each target view against the mean of the others (not of itself)
-        others = (total - targets) / (n - 1) if n > 1 else targets
-        z_pos = np.abs(targets - others)
-        z_neg = np.abs(bystanders - total / n)
+        z_pos, z_neg = _differences(targets, bystanders)
         z = np.concatenate([z_pos, z_neg]).astype(np.float64)
         y = np.concatenate([np.ones(len(z_pos)), np.zeros(len(z_neg))])
         weight = np.concatenate(
@@ -391,9 +504,34 @@ class OnlineVerifier:
         return b, w.astype(np.float32)
 
 
+def _differences(targets: np.ndarray, bystanders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|each target view - the mean of the others| and |each bystander - the target's mean|,
+    with the differences not seen filled by their class's mean (0 where none was seen)."""
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns give NaN, filled below
+        n = len(targets)
+        seen = ~np.isnan(targets)
+        total = np.where(seen, targets, 0.0).sum(axis=0)
+        count = seen.sum(axis=0)
+        mu = total / np.maximum(count, 1)
+        if n > 1:  # each target view against the mean of the others (not of itself)
+            others = (total - np.where(seen, targets, 0.0)) / np.maximum(count - seen, 1)
+            others[(count - seen) == 0] = np.nan
+        else:
+            others = targets
+        z_pos = np.abs(targets - others)
+        z_neg = np.abs(bystanders - mu)
+        for z in (z_pos, z_neg):
+            fill = np.nan_to_num(np.nanmean(z, axis=0))
+            bad = np.isnan(z)
+            z[bad] = np.broadcast_to(fill, z.shape)[bad]
+    return z_pos, z_neg
+
+
 def _nearest(xs: np.ndarray, bank: np.ndarray, w: np.ndarray, k: int) -> np.ndarray:
-    """Per row of ``xs``, the mean weighted L1 distance to its ``k`` nearest rows of ``bank``."""
-    d = np.abs(xs[:, None, :] - bank[None, :, :]) @ w
+    """Per row of ``xs``, the mean weighted L1 distance (over what both saw) to its ``k``
+    nearest rows of ``bank``."""
+    d = _masked_l1(np.abs(xs[:, None, :] - bank[None, :, :]), w)
     k = min(k, d.shape[1])
     return np.partition(d, k - 1, axis=1)[:, :k].mean(axis=1)
 
