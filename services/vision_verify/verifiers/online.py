@@ -47,6 +47,7 @@ verification carries ``p`` itself too (``VerifiedCandidate.probability``).
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Sequence
 from typing import Annotated
@@ -248,6 +249,10 @@ class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Pull of the fitted weights towards the prior (per view, on squared differences)."""
     iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 40
     """Gradient steps of each refit."""
+    person_width_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.6
+    """The columns looked at: at most this wide at the candidate's depth, centred on its
+    bearing (the model's rectangle comes from the acquisition's motion blob, which can hold
+    people walking behind the target: crowd_ten's was 1 m wide). None: the whole rectangle."""
     neighbours: Annotated[int, msgspec.Meta(ge=1, le=32)] = 3
     """Stored views averaged for the nearest-view contrast (the k nearest target views and
     the k nearest bystander views)."""
@@ -348,12 +353,24 @@ class OnlineVerifier:
     def _view_features(self, frame: ImageFeatures, v: View) -> np.ndarray | None:
         if not v.ok or v.rect is None:
             return None
-        return self.features(frame, v.rect, v.body)
+        return self.features(frame, self._window(frame, v.rect, v), v.body)
+
+    def _window(self, frame: ImageFeatures, rect: Rect, v: View) -> Rect:
+        """``rect``'s columns within ``person_width_m`` of the view's bearing (the rectangle
+        as it is without a camera in the frame's cache, a depth or a column)."""
+        camera = frame.cache.get("camera")
+        width = self.settings.person_width_m
+        if camera is None or width is None or not (v.depth_m > 0 and math.isfinite(v.u_px)):
+            return rect
+        half = 0.5 * camera.f * width / v.depth_m
+        x0, y0, x1, y1 = rect
+        a, b = max(x0, round(v.u_px - half)), min(x1, round(v.u_px + half))
+        return (a, y0, b, y1) if b - a >= 2 else rect
 
     # ------------------------------------------------------------------ the Verifier protocol
 
     def learn(self, frame: ImageFeatures, rect: Rect, view: View) -> dict[str, np.ndarray]:
-        x = self.features(frame, rect, view.body)
+        x = self.features(frame, self._window(frame, rect, view), view.body)
         if x is None:
             raise ValueError(f"rectangle {rect} has no pixels inside the image")
         state = np.zeros(_STATE_LEN, dtype=np.float32)
@@ -444,7 +461,9 @@ class OnlineVerifier:
         view in view as a bystander (a new dict; the model's arrays are not changed). None
         when the target's view has no pixels."""
         tv = views[target]
-        x_t = self.features(frame, tv.rect, tv.body) if tv.rect is not None else None
+        x_t = None
+        if tv.rect is not None:
+            x_t = self.features(frame, self._window(frame, tv.rect, tv), tv.body)
         if x_t is None:
             return None
         f = model.features
