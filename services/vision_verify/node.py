@@ -163,7 +163,9 @@ class VisionVerify:
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
         # learn.source tracker: judged scans (stamp -> frame, views, model id) awaiting the
         # tracker's state of the same stamp
-        self.judged: OrderedDict[int, tuple[ImageFeatures, list[View], int]] = OrderedDict()
+        self.judged: OrderedDict[
+            int, tuple[ImageFeatures, list[View], list[float | None], int]
+        ] = OrderedDict()
         self.learns = getattr(self.verifier, "update", None) is not None
 
     def _connect(self) -> None:
@@ -453,7 +455,7 @@ class VisionVerify:
         choice now when it is confident (``confident``)."""
         learn = self.s.learn
         if learn.source == "tracker":
-            self.judged[stamp_ns] = (frame, j.views, model_id)
+            self.judged[stamp_ns] = (frame, j.views, j.distances, model_id)
             while len(self.judged) > learn.scans:
                 self.judged.popitem(last=False)
         elif learn.source == "confident" and confident(
@@ -479,7 +481,7 @@ class VisionVerify:
         judged = self.judged.pop(state.stamp_ns, None)
         if judged is None or self.model is None or state.status != "tracking":
             return
-        frame, views, model_id = judged
+        frame, views, distances, model_id = judged
         if model_id != self.model.model_id:
             return  # judged with a model since replaced
         # both in the base frame: candidates are turned into it as they arrive
@@ -494,6 +496,11 @@ class VisionVerify:
             return
         if not views[near[0]].ok:
             self.count("learn_target_not_in_view")
+            return
+        most = self.s.learn.agree_max_distance
+        d = distances[near[0]]
+        if most is not None and not (d is not None and d <= most):
+            self.count("learn_not_agreed")  # the tracker may follow someone else: not learnt
             return
         self.learn(frame, views, near[0])
 
