@@ -490,3 +490,35 @@ def test_any_candidates_any_pan_never_fail(model_file, xy, pan):
     (v,) = rig.verifications()
     assert len(v.candidates) == len(xy)
     assert v.chosen == -1 or v.candidates[v.chosen].in_view
+
+
+@pytest.mark.parametrize(("agree", "on_target", "learnt"), [
+    (0.3, True, True),    # the tracker follows whom vision also takes for the target
+    (0.3, False, False),  # the tracker follows the bystander: not learnt as the target
+    (None, False, True),  # without the agreement rule, whatever the tracker follows
+])  # fmt: skip
+def test_an_online_verifier_learns_the_tracker_s_target_only_when_it_agrees(
+    tmp_path, agree, on_target, learnt
+):
+    from followbot.schemas import TrackState
+    from followbot.services.vision_verify.verifiers.online import OnlineVerifier
+
+    camera, acq, _ = acquired_scene()
+    path = tmp_path / "online.model"
+    save_model(path, build_model(OnlineVerifier(), camera, acq, 3).to_message())
+    rig = loaded(path, verifier="online", learn={"agree_max_distance": agree})
+    px, pan, cands, truth = crossing_frame()
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    rig.put("perception/candidates", cands)
+    (v,) = rig.verifications()
+    mine = next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == 1)
+    other = next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == 2)
+    assert mine.probability > 0.7 > other.probability
+    followed = mine if on_target else other
+    before = rig.svc.model.features["state"][0]  # target views seen
+    rig.put(
+        "tracking/target",
+        TrackState(stamp_ns=cands.stamp_ns, status="tracking", x_m=followed.x_m, y_m=followed.y_m),
+    )
+    assert (rig.svc.model.features["state"][0] == before + 1) == learnt
+    assert (rig.svc.counts.get("learn_not_agreed", 0) == 1) == (not learnt)
