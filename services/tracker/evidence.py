@@ -17,7 +17,10 @@ threshold may be forgiven (``hysteresis``).
   falls to ``identity.evidence_veto``, the track vision chose replaces it at
   ``identity.evidence_switch`` (and above the target's own), and a lost target is re-taken
   at ``identity.evidence_reacquire``. The cap keeps old confirmations from outweighing fresh
-  rejections (from the cap, four looks at p = 0.2 pass -2). A verifier that gives no
+  rejections (from the cap, four looks at p = 0.2 pass -2), and one look counts at most
+  +-``identity.evidence_look_max`` (2: p 0.12 / 0.88): a verifier's probability is calibrated
+  on people in view, and one look at a table the laser did not see in front of the target is
+  not the end of it. A verifier that gives no
   probability counts as p = 0.75 at or below its threshold and 0.25 above (one vote each).
 """
 
@@ -116,7 +119,9 @@ class ProbabilityEvidence:
             if tid < 0 or tid in seen or p is None:
                 continue  # a track's first judged candidate speaks for it
             seen.add(tid)
-            total = self.log_odds.get(tid, 0.0) + math.log(p / (1.0 - p))
+            most = self.settings.evidence_look_max
+            look = min(most, max(-most, math.log(p / (1.0 - p))))
+            total = self.log_odds.get(tid, 0.0) + look
             self.log_odds[tid] = min(cap, max(-cap, total))
         for tid in [t for t in self.log_odds if t not in live]:
             del self.log_odds[tid]

@@ -158,9 +158,13 @@ class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     evidence_cap: Annotated[float, msgspec.Meta(gt=0, le=20)] = 3.0
     """``probability``: a track's summed log-odds are held within +-this (p 0.95), so old
     confirmations do not outweigh fresh rejections."""
+    evidence_look_max: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    """``probability``: one look adds at most +-this (p 0.12 / 0.88): a probability is
+    calibrated on people in view, not on a view of furniture the laser missed in front of the
+    target (bellotto_cluttered_office: one look at p 0.00 dropped a target held at p 0.98)."""
     evidence_veto: Annotated[float, msgspec.Meta(lt=0)] = -2.0
     """``probability``: the target is dropped once its sum is at or below this (from the cap:
-    four looks at p 0.2, or one at p 0.007)."""
+    four looks at p 0.2, or three at p 0.12 and below)."""
     evidence_switch: Annotated[float, msgspec.Meta(gt=0)] = 2.0
     """``probability``: the track vision chose replaces the target once its sum is at least
     this and above the target's (two looks at p 0.75, one at p 0.88)."""
