@@ -249,6 +249,10 @@ class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Pull of the fitted weights towards the prior (per view, on squared differences)."""
     iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 40
     """Gradient steps of each refit."""
+    bystander_gap_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
+    """While following, a candidate nearer the target than this is not learnt as a bystander:
+    it may be the target's own other leg (the laser did not pair them) or a part of it, and
+    learning it as someone else teaches the model that the target is not the target."""
     person_width_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.6
     """The columns looked at: at most this wide at the candidate's depth, centred on its
     bearing (the model's rectangle comes from the acquisition's motion blob, which can hold
@@ -475,7 +479,7 @@ class OnlineVerifier:
         others = [
             x
             for i, v in enumerate(views)
-            if i != target
+            if i != target and self._someone_else(tv, v)
             for x in [self._view_features(frame, v)]
             if x is not None
         ]
@@ -492,6 +496,13 @@ class OnlineVerifier:
             state[2], state[3:] = self._fit(targets, bystanders, state[2], state[3:])
             learnt["bystander_views"], learnt["bystander_seen"] = _pack(bystanders)
         return learnt
+
+    def _someone_else(self, target: View, v: View) -> bool:
+        """Whether ``v`` may be learnt as a bystander: at least ``bystander_gap_m`` from the
+        target (a leg of the target's own that the laser did not pair, or the target's
+        other half, is not someone else)."""
+        gap = self.settings.bystander_gap_m
+        return not math.hypot(v.x_m - target.x_m, v.y_m - target.y_m) < gap
 
     def _fit(
         self, targets: np.ndarray, bystanders: np.ndarray, bias: float, w: np.ndarray
