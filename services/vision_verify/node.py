@@ -46,6 +46,7 @@ import numpy as np
 from followbot.schemas import (
     Image,
     LaserScan,
+    People,
     PersonCandidates,
     TargetCommand,
     TargetModel,
@@ -167,6 +168,10 @@ class VisionVerify:
             int, tuple[ImageFeatures, list[View], list[float | None], int]
         ] = OrderedDict()
         self.learns = getattr(self.verifier, "update", None) is not None
+        # learn.bystanders people: the tracker's people by stamp, and target states waiting
+        # for the people of their stamp (the tracker publishes both per scan, in either order)
+        self.people: OrderedDict[int, People] = OrderedDict()
+        self.waiting: OrderedDict[int, TrackState] = OrderedDict()
 
     def _connect(self) -> None:
         """Publishers, subscriptions, timers and the model holder's liveliness."""
@@ -215,6 +220,14 @@ class VisionVerify:
                 dispatch="loop",
                 on_restart=self.judged.clear,
             )
+            if settings.learn.bystanders == "people":
+                node.subscribe(
+                    "tracking/people",
+                    self.on_people,
+                    capacity=16,
+                    dispatch="loop",
+                    on_restart=self.people.clear,
+                )
         node.every(0.02, self.on_timer, name="vision_timer")
         node.every(settings.health_period_s, self.update_notes, name="notes")
         node.every(settings.recovery.query_period_s, self.ask, name="ask_model")
@@ -476,8 +489,26 @@ class VisionVerify:
         self.model.features = learnt
         self.count("learnt")
 
+    def on_people(self, people: People) -> None:
+        """The tracker's people at a scan (``learn.bystanders: people``)."""
+        self.people[people.stamp_ns] = people
+        while len(self.people) > self.s.learn.scans:
+            self.people.popitem(last=False)
+        state = self.waiting.pop(people.stamp_ns, None)
+        if state is not None:
+            self.on_target(state)
+
     def on_target(self, state: TrackState) -> None:
         """The tracker's target at a judged scan: learn which candidate it was."""
+        people = None
+        if self.s.learn.bystanders == "people":
+            people = self.people.get(state.stamp_ns)
+            if people is None:  # its people come next
+                if state.stamp_ns in self.judged:
+                    self.waiting[state.stamp_ns] = state
+                    while len(self.waiting) > self.s.learn.scans:
+                        self.waiting.popitem(last=False)
+                return
         judged = self.judged.pop(state.stamp_ns, None)
         if judged is None or self.model is None or state.status != "tracking":
             return
@@ -502,7 +533,20 @@ class VisionVerify:
         if most is not None and not (d is not None and d <= most):
             self.count("learn_not_agreed")  # the tracker may follow someone else: not learnt
             return
-        self.learn(frame, views, near[0])
+        if people is None:
+            self.learn(frame, views, near[0])
+            return
+        # bystanders: only candidates on the tracker's other people (not clutter)
+        others = [
+            (t.x_m, t.y_m) for t in people.tracks if t.id != people.target_id and t.misses == 0
+        ]
+        gate = self.s.learn.gate_m
+        keep = [
+            i
+            for i, v in enumerate(views)
+            if i == near[0] or any(math.hypot(v.x_m - x, v.y_m - y) <= gate for x, y in others)
+        ]
+        self.learn(frame, [views[i] for i in keep], keep.index(near[0]))
 
     def publish_empty(self, msg: PersonCandidates, model_id: int | None = None) -> None:
         """An answer that judged nothing; ``model_id`` defaults to the current model's."""

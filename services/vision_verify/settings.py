@@ -138,6 +138,12 @@ class LearnSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     ``confident_margin``); ``off``: never."""
     gate_m: _Pos = 0.4
     """``source: tracker``: how near the tracker's target a candidate must lie to be it."""
+    bystanders: Literal["people", "candidates"] = "people"
+    """``source: tracker``: who is learnt as a bystander. ``people``: only the candidates on
+    the tracker's other people (tracking/people, within ``gate_m`` of a track seen at that
+    scan): the laser's clutter -- a chair, a door frame, a red cabinet -- is nobody, and
+    learnt as a bystander it teaches the model that whatever looks like it is not the target.
+    ``candidates``: every other candidate in view."""
     agree_max_distance: Annotated[float, msgspec.Meta(ge=0)] | None = 0.3
     """``source: tracker``: the tracker's target is learnt only when the verifier's own
     distance for it is at most this (online: p >= 0.7), so a person the tracker took by

@@ -520,5 +520,43 @@ def test_an_online_verifier_learns_the_tracker_s_target_only_when_it_agrees(
         "tracking/target",
         TrackState(stamp_ns=cands.stamp_ns, status="tracking", x_m=followed.x_m, y_m=followed.y_m),
     )
+    assert rig.svc.model.features["state"][0] == before  # waits for the tracker's people
+    rig.put(
+        "tracking/people", people_at(cands.stamp_ns, followed, mine if followed is other else other)
+    )
     assert (rig.svc.model.features["state"][0] == before + 1) == learnt
     assert (rig.svc.counts.get("learn_not_agreed", 0) == 1) == (not learnt)
+
+
+def people_at(stamp_ns, target, *others, clutter=()):
+    from followbot.schemas import People, PersonTrack
+
+    tracks = [PersonTrack(id=1, x_m=target.x_m, y_m=target.y_m)]
+    tracks += [PersonTrack(id=2 + i, x_m=o.x_m, y_m=o.y_m) for i, o in enumerate(others)]
+    return People(stamp_ns=stamp_ns, tracks=tracks, target_id=1)
+
+
+@pytest.mark.parametrize("bystanders", ["people", "candidates"])
+def test_only_the_tracker_s_other_people_are_learnt_as_bystanders(tmp_path, bystanders):
+    """learn.bystanders: people -- a candidate on none of the tracker's people (clutter) is
+    not learnt as a bystander; candidates -- every other candidate is."""
+    from followbot.schemas import TrackState
+    from followbot.services.vision_verify.verifiers.online import OnlineVerifier
+
+    camera, acq, _ = acquired_scene()
+    path = tmp_path / "online.model"
+    save_model(path, build_model(OnlineVerifier(), camera, acq, 3).to_message())
+    rig = loaded(path, verifier="online", learn={"bystanders": bystanders})
+    px, pan, cands, truth = crossing_frame()
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    rig.put("perception/candidates", cands)
+    (v,) = rig.verifications()
+    mine = next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == 1)
+    rig.put("tracking/people", people_at(cands.stamp_ns, mine))  # nobody else is a person
+    rig.put(
+        "tracking/target",
+        TrackState(stamp_ns=cands.stamp_ns, status="tracking", x_m=mine.x_m, y_m=mine.y_m),
+    )
+    state = rig.svc.model.features["state"]
+    assert state[0] == 2  # the target learnt
+    assert state[1] == (0 if bystanders == "people" else len(v.candidates) - 1)
