@@ -120,3 +120,15 @@ def test_a_process_told_nothing_about_listening_listens_on_loopback_not_every_in
     assert _listen(ZenohSettings(connect=["tcp/127.0.0.1:7447"], config=str(f))) == [
         "tcp/127.0.0.2:0"
     ]
+
+
+def test_the_word_off_is_a_word_and_only_true_false_are_booleans(tmp_path):
+    """YAML 1.1 (PyYAML) reads off/on/yes/no as booleans: `--set learn.source=off` arrived as
+    False and was refused as "expected str, got bool". Settings read YAML 1.2's booleans."""
+    data = apply_overrides({}, ["learn.source=off", "a=on", "b=yes", "c=true", "d=False"])
+    assert data == {"learn": {"source": "off"}, "a": "on", "b": "yes", "c": True, "d": False}
+    path = tmp_path / "s.yaml"
+    path.write_text("learn: {source: off}\nverifier: online\n")
+    from followbot.services.vision_verify.settings import VisionVerifySettings
+
+    assert load_settings(VisionVerifySettings, path).learn.source == "off"

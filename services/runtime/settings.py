@@ -15,6 +15,7 @@ msgspec's bare "unknown field".
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
@@ -163,13 +164,33 @@ def with_node_settings(core: type[msgspec.Struct], name: str, module: str) -> ty
     )
 
 
+class _Loader(yaml.SafeLoader):
+    """YAML with only ``true``/``false`` (any case) as booleans, as YAML 1.2 has it: PyYAML
+    follows YAML 1.1, where ``off``, ``on``, ``yes``, ``no`` are booleans too, so a setting
+    whose value is the word ``off`` (``learn.source: off``) arrived as ``False``."""
+
+
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
+)
+
+
+def load_yaml(text: str) -> Any:
+    """``text`` as YAML with YAML 1.2's booleans (:class:`_Loader`)."""
+    return yaml.load(text, Loader=_Loader)  # a SafeLoader: no arbitrary objects
+
+
 def _parse_file(path: Path) -> dict[str, Any]:
     try:
         text = path.read_text()
     except OSError as exc:
         raise SettingsError(f"cannot read settings file {path}: {exc.strerror}") from None
     try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        data = json.loads(text) if path.suffix == ".json" else load_yaml(text)
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         kind = "JSON" if path.suffix == ".json" else "YAML"
         raise SettingsError(f"{path}: not valid {kind}: {exc}") from None
@@ -187,7 +208,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
         if not sep or not key.strip():
             raise SettingsError(f"--set expects key=value, got {item!r}")
         try:
-            value = yaml.safe_load(raw) if raw.strip() else ""
+            value = load_yaml(raw) if raw.strip() else ""
         except yaml.YAMLError as exc:
             raise SettingsError(f"--set {key}: value {raw!r} is not valid YAML: {exc}") from None
         node = data
