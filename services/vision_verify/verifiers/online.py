@@ -427,8 +427,7 @@ class OnlineVerifier:
         targets = _unpack(features, "target_views")
         state = features["state"]
         w = state[3:]
-        with np.errstate(invalid="ignore"):
-            mu = np.nanmean(targets, axis=0) if np.isnan(targets).any() else targets.mean(axis=0)
+        mu = _mean_seen(targets)
         logit = float(state[2]) - _masked_l1(np.abs(xs - mu), w)
         bystanders = _unpack(features, "bystander_views")
         s = self.settings
@@ -532,6 +531,16 @@ class OnlineVerifier:
             w = np.maximum(0.0, w - step * grad_w)
             b -= step * grad_b
         return b, w.astype(np.float32)
+
+
+def _mean_seen(bank: np.ndarray) -> np.ndarray:
+    """Per dimension the mean of the rows that saw it (NaN where none did)."""
+    if not np.isnan(bank).any():
+        return bank.mean(axis=0)
+    seen = ~np.isnan(bank)
+    count = seen.sum(axis=0)
+    mean = np.where(seen, bank, 0.0).sum(axis=0) / np.maximum(count, 1)
+    return np.where(count > 0, mean, np.nan).astype(np.float32)
 
 
 def _differences(targets: np.ndarray, bystanders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
