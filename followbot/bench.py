@@ -93,7 +93,7 @@ def _worker(argv: list[str]) -> int:
     p.add_argument("mode", choices=["bare", "node", "pong"])
     p.add_argument("--endpoint", required=True)
     p.add_argument("--key", required=True)
-    p.add_argument("--count", type=positive_int, required=True)
+    p.add_argument("--count", type=positive_int, default=1, help="samples to receive (not pong)")
     p.add_argument("--timeout", type=positive_float, default=60.0)
     a = p.parse_args(argv)
     lat: list[int] = []
@@ -209,7 +209,7 @@ def round_trip_bare(session, endpoint: str, payload_size: int, count: int) -> di
     import threading
 
     key = f"followbot/bench/rtt{payload_size}"
-    child = _spawn_worker("pong", "--endpoint", endpoint, "--key", key, "--count", "0")
+    child = _spawn_worker("pong", "--endpoint", endpoint, "--key", key)
     try:
         got = threading.Event()
         rtts: list[int] = []
@@ -236,6 +236,7 @@ def round_trip_bare(session, endpoint: str, payload_size: int, count: int) -> di
         return {"rtt_p50_ms": s["p50_ms"], "rtt_p99_ms": s["p99_ms"], "received": s["received"]}
     finally:
         child.kill()
+        child.communicate()  # reaps it and closes its pipe
 
 
 def hop_figures(scan_count: int, image_count: int) -> dict:

@@ -278,3 +278,15 @@ def test_a_loss_and_a_retake_are_counted_from_the_target_status_sequence():
     assert f["person_ids"] == 2
     assert f["new_ids_per_min"] == pytest.approx(2 / (9 / 60), abs=0.1)
     assert f["scans_unanswered"] == 1
+
+
+def test_the_bench_round_trip_runs_against_a_real_pong_process():
+    """`followbot bench`'s round trip: a pong child process over Zenoh echoes every ping (its
+    arguments once refused --count 0 and `make bench` stopped there)."""
+    from followbot.bench import _zenoh_settings, round_trip_bare
+    from followbot.services.runtime.session import free_loopback_endpoint, open_session
+
+    endpoint = free_loopback_endpoint()
+    with open_session(_zenoh_settings(listen=[endpoint])) as session:
+        out = round_trip_bare(session, endpoint, 64, 20)
+    assert out["received"] == 20 and out["rtt_p50_ms"] > 0
