@@ -86,6 +86,7 @@ from pathlib import Path
 import msgspec
 
 from followbot import progress
+from followbot.presetargs import add_preset_arguments
 
 __all__ = [
     "LogRun",
@@ -1173,11 +1174,12 @@ def build_parser() -> argparse.ArgumentParser:
         "(out/benchmark)",
     )  # fmt: skip
     which = p.add_mutually_exclusive_group()
-    which.add_argument(
-        "--preset", default="followbot", metavar="NAME",
-        help=f"the preset the pipeline runs with: {', '.join(preset_names())} (default: "
-        "followbot, the defaults; thesis: the thesis as published)",
-    )  # fmt: skip
+    add_preset_arguments(
+        p,
+        preset_group=which,
+        set_note="not for the detectors and appearance sections, which measure each detector "
+        "and verifier with its defaults",
+    )
     which.add_argument(
         "--all-presets", action="store_true",
         help="every preset in turn; one that cannot run is listed as skipped with the reason",
@@ -1186,12 +1188,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--only", nargs="+", choices=list(SECTIONS), metavar="SECTION",
         help=f"run only these sections: {', '.join(SECTIONS)}",
-    )  # fmt: skip
-    p.add_argument(
-        "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
-        help="a stage setting for the pipeline runs, e.g. laser_legs.detector=learned "
-        "(repeatable; not for the detectors and appearance sections, which measure each "
-        "detector and verifier with its defaults)",
     )  # fmt: skip
     p.add_argument(
         "--laser-odometry", choices=("auto", "on", "off"), default="auto",
@@ -1215,8 +1211,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"followbot benchmark: no data folder at {data}", file=sys.stderr)
         return 2
     chosen = preset_names() if args.all_presets else [args.preset]
-    if args.preset not in preset_names():
-        p.error(f"--preset: unknown preset {args.preset!r}; presets: {', '.join(preset_names())}")
     presets, refused = [], {}
     pipeline = set(args.only or SECTIONS) & {"false_people", "legs360", "demo"}
     for preset in chosen:
