@@ -79,12 +79,14 @@ import sys
 import time
 import traceback
 import typing
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import msgspec
 
 from followbot import progress
+from followbot.presetargs import add_preset_arguments
 
 __all__ = [
     "LogRun",
@@ -884,16 +886,20 @@ def markdown(result: dict) -> str:
     ]
     rows = summary_rows(result)
     if rows and presets:
-        lines += ["## Summary", "", "| figure | " + " | ".join(presets) + " |",
-                  "|---" * (len(presets) + 1) + "|"]  # fmt: skip
-        lines += [f"| {label} | " + " | ".join(c[p] for p in presets) + " |" for label, c in rows]
-        lines.append("")
-    lines += _detectors_md(result["detectors"])
-    lines += _false_people_md(result["false_people"])
-    lines += _legs360_md(result["legs360"])
-    lines += _appearance_md(result["appearance"])
-    lines += _demo_md(result["demo"])
-    lines += _throughput_md(result["throughput"])
+        table = _table(
+            ["figure", *presets], [[label, *(c[p] for p in presets)] for label, c in rows]
+        )
+        lines += ["## Summary", "", *table, ""]
+    lines += _section(
+        "Laser detectors (held-out leg_tracker data)", result["detectors"], _detectors_md
+    )
+    lines += _section(
+        "False people (CARMEN logs, negative_2)", result["false_people"], _false_people_md
+    )
+    lines += _section("legs360: the walker and ghosts", result["legs360"], _legs360_md)
+    lines += _section("Appearance on pets09", result["appearance"], _appearance_md)
+    lines += _section("demo_stationary: id churn and the target", result["demo"], _demo_md)
+    lines += _section("Throughput", result["throughput"], _throughput_md)
     if result["skipped"]:
         lines += ["## Skipped", ""]
         lines += [f"- {s['what']}: {s['why']}" for s in result["skipped"]]
@@ -901,89 +907,100 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _skipped_md(title: str, section: dict) -> list[str] | None:
-    if "skipped" in section:
-        return [f"## {title}", "", f"Skipped: {section['skipped']}.", ""]
-    return None
+def _section(title: str, d: dict, body: Callable[[dict], list[str]]) -> list[str]:
+    """A report section: ``## title``, then ``body(d)``, or why the section was skipped."""
+    if "skipped" in d:
+        return [f"## {title}", "", f"Skipped: {d['skipped']}.", ""]
+    return [f"## {title}", "", *body(d)]
+
+
+def _table(
+    columns: Sequence[str],
+    rows: Iterable[Sequence[object]],
+    title: str | None = None,
+    intro: str | None = None,
+) -> list[str]:
+    """A Markdown table as lines: ``### title`` and ``intro`` (each followed by a blank line)
+    when given, the header row of ``columns``, then one line per row (each cell as str)."""
+    lines = [] if title is None else [f"### {title}", ""]
+    if intro is not None:
+        lines += [intro, ""]
+    lines += ["| " + " | ".join(columns) + " |", "|---" * len(columns) + "|"]
+    return lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
 
 
 def _detectors_md(d: dict) -> list[str]:
-    title = "Laser detectors (held-out leg_tracker data)"
-    if (skipped := _skipped_md(title, d)) is not None:
-        return skipped
-    lines = [
-        f"## {title}",
-        "",
+    intro = (
         f"{d['positive_scans']} labelled scans of {', '.join(d['positives'])} "
         f"({d['labelled_legs']} legs); {d['negative_scans']} scans of negative_2 "
         f"{' and '.join(d['negative_topics'])} (nobody there). Each detector behind the "
-        "robot-body filter, as the laser_legs service builds it.",
-        "",
-        "| detector | leg recall | recall <= 3.5 m | false candidates/scan | false legs/scan "
-        "| us/scan p50 |",
-        "|---|---|---|---|---|---|",
+        "robot-body filter, as the laser_legs service builds it."
+    )
+    columns = ["detector", "leg recall", "recall <= 3.5 m", "false candidates/scan",
+               "false legs/scan", "us/scan p50"]  # fmt: skip
+    rows = [
+        [
+            r["detector"],
+            _num(r["leg_recall"], 3),
+            _num(r["leg_recall_within_3_5_m"], 3),
+            _num(r["false_candidates_per_scan"]),
+            _num(r["false_legs_per_scan"]),
+            _num(r["us_per_scan_p50"], 0),
+        ]
+        for r in d["rows"]
     ]
-    for r in d["rows"]:
-        lines.append(
-            f"| {r['detector']} | {_num(r['leg_recall'], 3)} | "
-            f"{_num(r['leg_recall_within_3_5_m'], 3)} | {_num(r['false_candidates_per_scan'])} | "
-            f"{_num(r['false_legs_per_scan'])} | {_num(r['us_per_scan_p50'], 0)} |"
-        )
-    return [*lines, "", "![detectors](detectors.png)", ""]
+    return [*_table(columns, rows, intro=intro), "", "![detectors](detectors.png)", ""]
 
 
 def _false_people_md(d: dict) -> list[str]:
-    title = "False people (CARMEN logs, negative_2)"
-    if (skipped := _skipped_md(title, d)) is not None:
-        return skipped
-    lines = [f"## {title}", ""]
+    columns = ["recording", "scans", "false people/scan", "scans with a false person",
+               "most at once", "person ids"]  # fmt: skip
+    lines: list[str] = []
     for preset, res in d.items():
-        lines += [
-            f"### {preset}",
-            "",
-            "| recording | scans | false people/scan | scans with a false person | most at once "
-            "| person ids |",
-            "|---|---|---|---|---|---|",
-        ]
         items = list(res["logs"].items())
         items += [(f"**{k}**", res[k]) for k in ("carmen_all", "negative_2_all") if k in res]
-        for name, f in items:
-            lines.append(
-                f"| {name} | {f['scans']} | {_num(f['false_people_per_scan'])} | "
-                f"{_pct(f['scans_with_false_person'])} | {f['most_at_once']} | {f['person_ids']} |"
-            )
-        lines.append("")
+        rows = [
+            [
+                name,
+                f["scans"],
+                _num(f["false_people_per_scan"]),
+                _pct(f["scans_with_false_person"]),
+                f["most_at_once"],
+                f["person_ids"],
+            ]
+            for name, f in items
+        ]
+        lines += [*_table(columns, rows, title=preset), ""]
     return [*lines, "![false people](false_people.png)", ""]
 
 
 def _legs360_md(d: dict) -> list[str]:
-    title = "legs360: the walker and ghosts"
-    if (skipped := _skipped_md(title, d)) is not None:
-        return skipped
-    lines = [
-        f"## {title}",
-        "",
-        "| preset | labelled scans | walker tracked | walker followed | ghosts/scan | "
-        "scans with a ghost |",
-        "|---|---|---|---|---|---|",
+    columns = ["preset", "labelled scans", "walker tracked", "walker followed", "ghosts/scan",
+               "scans with a ghost"]  # fmt: skip
+    rows = [
+        [
+            preset,
+            f["labelled_scans"],
+            _pct(f["walker_tracked"]),
+            _pct(f["walker_followed"]),
+            _num(f["ghosts_per_scan"]),
+            _pct(f["scans_with_ghost"]),
+        ]
+        for preset, f in d.items()
     ]
-    for preset, f in d.items():
-        lines.append(
-            f"| {preset} | {f['labelled_scans']} | {_pct(f['walker_tracked'])} | "
-            f"{_pct(f['walker_followed'])} | {_num(f['ghosts_per_scan'])} | "
-            f"{_pct(f['scans_with_ghost'])} |"
-        )
     radius = next(iter(d.values()))["radius_m"]
-    return [*lines, "", f"A track within {radius} m of the walker is the walker's.", ""]
+    return [
+        *_table(columns, rows),
+        "",
+        f"A track within {radius} m of the walker is the walker's.",
+        "",
+    ]
 
 
 def _appearance_md(d: dict) -> list[str]:
     from followbot.appearance import format_table
 
-    title = "Appearance on pets09"
-    if (skipped := _skipped_md(title, d)) is not None:
-        return skipped
-    lines = [f"## {title}", ""]
+    lines: list[str] = []
     for name, summary in d["verifiers"].items():
         lines += [f"### {name} ({', '.join(summary['presets'])})", "", format_table(summary), ""]
         lines += [f"![{name}](appearance_{name}.png)", ""]
@@ -991,53 +1008,56 @@ def _appearance_md(d: dict) -> list[str]:
 
 
 def _demo_md(d: dict) -> list[str]:
-    title = "demo_stationary: id churn and the target"
-    if (skipped := _skipped_md(title, d)) is not None:
-        return skipped
-    lines = [
-        f"## {title}",
-        "",
-        "| preset | scans | minutes | person ids | new ids/min | people/scan | target first "
-        "chosen at | tracked after | losses | taken back | lost at the end | target ids |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    columns = ["preset", "scans", "minutes", "person ids", "new ids/min", "people/scan",
+               "target first chosen at", "tracked after", "losses", "taken back",
+               "lost at the end", "target ids"]  # fmt: skip
+    rows = [
+        [
+            preset,
+            f["scans"],
+            _num(f["minutes"]),
+            f["person_ids"],
+            _num(f["new_ids_per_min"], 1),
+            _num(f["people_per_scan"]),
+            "never" if f["target_first_s"] is None else f"{f['target_first_s']} s",
+            _pct(f["target_tracked_after_first"]),
+            f["target_losses"],
+            f["target_taken_back"],
+            "yes" if f["target_lost_at_end"] else "no",
+            f["target_ids"],
+        ]
+        for preset, f in d.items()
     ]
-    for preset, f in d.items():
-        first = "never" if f["target_first_s"] is None else f"{f['target_first_s']} s"
-        lines.append(
-            f"| {preset} | {f['scans']} | {_num(f['minutes'])} | {f['person_ids']} | "
-            f"{_num(f['new_ids_per_min'], 1)} | {_num(f['people_per_scan'])} | {first} | "
-            f"{_pct(f['target_tracked_after_first'])} | {f['target_losses']} | "
-            f"{f['target_taken_back']} | {'yes' if f['target_lost_at_end'] else 'no'} | "
-            f"{f['target_ids']} |"
-        )
-    return [*lines, "", "![demo](demo.png)", ""]
+    return [*_table(columns, rows), "", "![demo](demo.png)", ""]
 
 
 def _throughput_md(d: dict) -> list[str]:
-    title = "Throughput"
-    if (skipped := _skipped_md(title, d)) is not None:
-        return skipped
-    lines = [
-        f"## {title}",
-        "",
+    intro = (
         "Scans per second through laser_legs and tracker in lock-step (and laser_odometry "
         "where the odometry is laser_odometry's), reading the file included; x real time: the "
         "recording's duration over the time taken. On a shared machine these vary from run "
-        "to run.",
-        "",
-        "| preset | recording | odometry | scans | s | scans/s | x real time | unanswered scans |",
-        "|---|---|---|---|---|---|---|---|",
+        "to run."
+    )
+    columns = ["preset", "recording", "odometry", "scans", "s", "scans/s", "x real time",
+               "unanswered scans"]  # fmt: skip
+    rows = [
+        [
+            preset,
+            name,
+            r.get("odometry") or "?",
+            r["scans"],
+            r["seconds"],
+            _num(r["scans_per_s"], 0),
+            _num(r["x_real_time"], 1),
+            ", ".join(f"{s} {n}" for s, n in r["stage_timeouts"].items()) or "-",
+        ]
+        for preset, runs in d.items()
+        for name, r in runs.items()
     ]
-    unanswered = 0
-    for preset, runs in d.items():
-        for name, r in runs.items():
-            late = ", ".join(f"{s} {n}" for s, n in r["stage_timeouts"].items()) or "-"
-            unanswered += sum(r["stage_timeouts"].values())
-            lines.append(
-                f"| {preset} | {name} | {r.get('odometry') or '?'} | {r['scans']} | "
-                f"{r['seconds']} | "
-                f"{_num(r['scans_per_s'], 0)} | {_num(r['x_real_time'], 1)} | {late} |"
-            )
+    lines = _table(columns, rows, intro=intro)
+    unanswered = sum(
+        sum(r["stage_timeouts"].values()) for runs in d.values() for r in runs.values()
+    )
     if unanswered:
         lines += [
             "",
@@ -1154,11 +1174,12 @@ def build_parser() -> argparse.ArgumentParser:
         "(out/benchmark)",
     )  # fmt: skip
     which = p.add_mutually_exclusive_group()
-    which.add_argument(
-        "--preset", default="followbot", metavar="NAME",
-        help=f"the preset the pipeline runs with: {', '.join(preset_names())} (default: "
-        "followbot, the defaults; thesis: the thesis as published)",
-    )  # fmt: skip
+    add_preset_arguments(
+        p,
+        preset_group=which,
+        set_note="not for the detectors and appearance sections, which measure each detector "
+        "and verifier with its defaults",
+    )
     which.add_argument(
         "--all-presets", action="store_true",
         help="every preset in turn; one that cannot run is listed as skipped with the reason",
@@ -1167,12 +1188,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--only", nargs="+", choices=list(SECTIONS), metavar="SECTION",
         help=f"run only these sections: {', '.join(SECTIONS)}",
-    )  # fmt: skip
-    p.add_argument(
-        "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
-        help="a stage setting for the pipeline runs, e.g. laser_legs.detector=learned "
-        "(repeatable; not for the detectors and appearance sections, which measure each "
-        "detector and verifier with its defaults)",
     )  # fmt: skip
     p.add_argument(
         "--laser-odometry", choices=("auto", "on", "off"), default="auto",
@@ -1196,8 +1211,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"followbot benchmark: no data folder at {data}", file=sys.stderr)
         return 2
     chosen = preset_names() if args.all_presets else [args.preset]
-    if args.preset not in preset_names():
-        p.error(f"--preset: unknown preset {args.preset!r}; presets: {', '.join(preset_names())}")
     presets, refused = [], {}
     pipeline = set(args.only or SECTIONS) & {"false_people", "legs360", "demo"}
     for preset in chosen:

@@ -1,8 +1,9 @@
 """``followbot demo``: the whole system follows a person in the simulator, then tells you how.
 
 Runs the default scenario (thesis 5.2.4: the target and a bystander cross, walk side by side
-and turn apart) with the thesis preset: the simulator, laser_legs, vision_verify, tracker and
-controller each as its own process over Zenoh, in lock-step. Shows progress, then prints
+and turn apart) with the followbot preset (the defaults; ``--preset`` names another, ``--set``
+changes a stage setting): the simulator, laser_legs, vision_verify, tracker and controller
+each as its own process over Zenoh, in lock-step. Shows progress, then prints
 whether the robot followed the right person, the tracking error, identity switches and the
 stages' latency, and writes the report, plots and an MCAP recording of every topic to an
 output folder. Every figure is measured in this run.
@@ -14,30 +15,35 @@ import argparse
 import sys
 from pathlib import Path
 
+from followbot.presetargs import add_preset_arguments
+
 DEFAULT_SCENARIO = "thesis_5_2_4_two_people"
 
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.evaluation import compute_metrics, write_report
-    from followbot.runner import RunError, run_scenario
-    from followbot.services.runtime.compose import PRESETS
+    from followbot.runner import RunError, check_stage_overrides, run_scenario
 
     p = argparse.ArgumentParser(
         prog="followbot demo", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     p.add_argument("--scenario", default=DEFAULT_SCENARIO, help=f"({DEFAULT_SCENARIO})")
-    p.add_argument(
-        "--preset", default="followbot", choices=sorted(PRESETS),
-        help="system preset (default: followbot, the defaults; thesis: the thesis as published)",
-    )  # fmt: skip
+    add_preset_arguments(p)
     p.add_argument("--output", default="out/demo", help="output folder (out/demo)")
     args = p.parse_args(argv)
     out = Path(args.output)
+    try:  # a malformed --set stops the demo before it starts
+        check_stage_overrides(args.preset, args.set)
+    except RunError as exc:
+        print(f"followbot demo: {exc}", file=sys.stderr)
+        return 2
     print(f"followbot demo: {args.scenario}, preset {args.preset}; sim + 4 stages as processes "
           "over Zenoh, lock-step")  # fmt: skip
     try:
-        run = run_scenario(args.scenario, args.preset, out / "run", record=True)
+        run = run_scenario(
+            args.scenario, args.preset, out / "run", record=True, overrides=args.set or None
+        )
     except (RunError, ValueError) as exc:
         print(f"followbot demo: {exc}", file=sys.stderr)
         return 1

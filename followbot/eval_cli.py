@@ -1,6 +1,6 @@
 """``followbot eval``: scenarios × presets through the real pipeline, in lock-step.
 
-    followbot eval --output out/eval                          # every built-in scenario, thesis
+    followbot eval --output out/eval                          # every built-in scenario, followbot
     followbot eval --preset zhuang --output out/zhuang        # seed 001, camera only
     followbot eval --scenario thesis_5_2_4_two_people --scenario my.yaml \\
                    --preset thesis --preset bellotto --output out/eval
@@ -24,7 +24,9 @@ import json
 import sys
 from pathlib import Path
 
-DEFAULT_PRESETS = ("followbot",)
+from followbot.presetargs import DEFAULT_PRESET, add_preset_arguments
+
+DEFAULT_PRESETS = (DEFAULT_PRESET,)
 
 
 def builtin_scenarios(preset: str | None = "followbot") -> list[str]:
@@ -40,7 +42,6 @@ def builtin_scenarios(preset: str | None = "followbot") -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.runner import RunError, check_stage_overrides, run_scenario
-    from followbot.services.runtime.compose import PRESETS
     from followbot.services.sim.node import load_scenario_setting
     from followbot.services.sim.scenario import ScenarioError
 
@@ -53,19 +54,10 @@ def main(argv: list[str] | None = None) -> int:
         help="a built-in scenario name or a scenario file (repeatable; default: the built-in "
         "ones for each preset)",
     )  # fmt: skip
-    p.add_argument(
-        "--preset", action="append", choices=sorted(PRESETS),
-        help="system preset (repeatable; default: followbot, the defaults)",
-    )  # fmt: skip
     p.add_argument("--output", required=True, metavar="DIR", help="report folder")
     p.add_argument("--seed", type=int, help="random seed (default: each scenario's own)")
     p.add_argument("--no-record", action="store_true", help="do not write MCAP recordings")
-    p.add_argument(
-        "--set", action="append", default=[], metavar="STAGE.KEY=VALUE",
-        help="a stage setting on top of the preset, e.g. --set tracker.max_misses=4 or "
-        "--set laser_legs.detector_settings.pairing=matching (repeatable; stages: sim, "
-        "laser_legs, vision_verify, tracker, controller)",
-    )  # fmt: skip
+    add_preset_arguments(p, repeatable=True)
     args = p.parse_args(argv)
     presets = args.preset or list(DEFAULT_PRESETS)
     scenarios = {p: args.scenario or builtin_scenarios(p) for p in presets}

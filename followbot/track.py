@@ -40,12 +40,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from followbot import progress
+from followbot.presetargs import add_preset_arguments
 from followbot.services.runtime.argtypes import positive_float, positive_int
 
 
 def main(argv: list[str] | None = None) -> int:
     from followbot.bags import RecordingError, open_recording
-    from followbot.services.runtime.compose import PRESETS
 
     p = argparse.ArgumentParser(
         prog="followbot track", description=__doc__,
@@ -87,14 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         "when the recording has none, on (instead of the recording's), off",
     )  # fmt: skip
     p.add_argument("--output", required=True, metavar="DIR", help="output folder")
-    p.add_argument(
-        "--preset", default="followbot", choices=sorted(PRESETS),
-        help="system preset (default: followbot, the defaults; thesis: the thesis as published)",
-    )  # fmt: skip
-    p.add_argument(
-        "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
-        help="a stage setting, e.g. laser_legs.detector=bellotto (repeatable)",
-    )  # fmt: skip
+    add_preset_arguments(p)
     p.add_argument(
         "--max-scans", type=positive_int, metavar="N", help="stop after N scans (default: all)"
     )

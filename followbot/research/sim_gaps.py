@@ -1,8 +1,9 @@
-"""Scenarios with and without vision (laser only), side by side: the issue-35 measurements.
+"""Scenarios with and without vision (laser only), side by side (made for issue 35's
+measurements, docs/tracker_log.md "Issue 35").
 
     python -m followbot.research.sim_gaps --output out/gaps/base \
         --scenario thesis_5_2_4_two_people --scenario occlusion_pillar --seeds own,1 \
-        --vision both --set tracker.deleter=target_seconds
+        --vision both --set tracker.identity.laser_reacquire_m=1.0
 
 ``followbot sweep`` runs the thesis preset with vision only; a laser-only run (the target is
 the nearest person ahead, no vision_verify: ``run_scenario(..., vision=False)``) needs this.

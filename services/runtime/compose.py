@@ -48,6 +48,7 @@ __all__ = [
     "is_router",
     "load_compose",
     "on_embedded_default",
+    "preset_settings",
     "process_groups",
     "reachable",
     "service_settings",
@@ -225,6 +226,15 @@ def _convert(path: Path, data: Any, type_: type, where: str):
         raise ComposeError(
             f"{path}: {field + ': ' if field else ''}{head if sep else text}"
         ) from None
+
+
+def preset_settings(preset: str, service: str) -> dict[str, Any]:
+    """The settings ``preset`` gives ``service`` (a copy; empty when the preset names none of
+    them: the service keeps its own defaults). An unknown preset is a ValueError naming the
+    presets there are."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; presets: {', '.join(PRESETS)}")
+    return _deep_copy(PRESETS[preset].get(service, {}))
 
 
 def service_settings(compose: Compose, name: str) -> dict[str, Any]:

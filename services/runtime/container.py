@@ -176,10 +176,14 @@ class _Both:
 
 
 def split_settings(
-    services: list[str], data: dict[str, Any], overrides: list[str]
+    services: list[str],
+    data: dict[str, Any],
+    overrides: list[str],
+    presets: dict[str, dict[str, Any]] | None = None,
 ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """(shared keys, each service's merged settings) from a group file's mapping and
-    ``--set`` overrides (``service.key=value`` for one service, ``key=value`` for all)."""
+    ``--set`` overrides (``service.key=value`` for one service, ``key=value`` for all), on top
+    of ``presets`` (service -> a preset's settings for it, ``--preset``)."""
     shared = {k: v for k, v in data.items() if k not in services}
     own: dict[str, dict[str, Any]] = {}
     for s in services:
@@ -200,7 +204,8 @@ def split_settings(
                 f"{s}.zenoh: services run together share one Zenoh session; "
                 "set zenoh at the top level (or with --connect/--listen/--mode)"
             )
-        m: dict[str, Any] = copy.deepcopy(shared)
+        m: dict[str, Any] = copy.deepcopy((presets or {}).get(s, {}))
+        _merge(m, copy.deepcopy(shared))
         _merge(m, own[s])
         merged[s] = m
     return shared, merged
@@ -209,7 +214,7 @@ def split_settings(
 def main(services: list[str], argv: list[str] | None = None) -> int:
     """``followbot run A+B+C [options]``: run services A, B and C in this process."""
     from .plugins import Registry, UnknownPlugin
-    from .service import add_run_arguments
+    from .service import add_run_arguments, preset_layer
 
     name = "+".join(services)
     parser = argparse.ArgumentParser(
@@ -235,7 +240,9 @@ def main(services: list[str], argv: list[str] | None = None) -> int:
         return 2
     try:
         data = _parse_file(Path(args.config)) if args.config else {}
-        shared, merged = split_settings(services, data, [*args.set, *overrides_from_args(args)])
+        presets = {s: preset_layer(args.preset, s) or {} for s in services}
+        overrides = [*args.set, *overrides_from_args(args)]
+        shared, merged = split_settings(services, data, overrides, presets)
         zenoh_settings = _zenoh_settings(shared)
     except SettingsError as exc:
         print(f"followbot run {name}: {exc}", file=sys.stderr)

@@ -19,7 +19,7 @@ from .node import Node, configure_logging, zenoh_node
 from .session import SessionError, add_zenoh_arguments, overrides_from_args
 from .settings import NodeSettings, SettingsError, load_settings
 
-__all__ = ["add_run_arguments", "service_main", "settings_help"]
+__all__ = ["add_run_arguments", "preset_layer", "service_main", "settings_help"]
 
 S = TypeVar("S", bound=NodeSettings)
 
@@ -40,7 +40,14 @@ def add_run_arguments(
     set_help: str = "override one setting (dotted key, YAML value); repeatable",
     print_help: str = "print the effective settings as YAML and exit",
 ) -> None:
-    """The options of `followbot run`: --config, --set, --duration, --print-settings, zenoh's."""
+    """The options of `followbot run`: --preset, --config, --set, --duration, --print-settings,
+    zenoh's."""
+    parser.add_argument(
+        "--preset", metavar="NAME",
+        help="start from a system preset's settings for this service (services/runtime/"
+        "compose.py PRESETS: followbot, the defaults of followbot track/eval/up; thesis; "
+        "...), under --config and --set (default: none, the settings' own defaults)",
+    )  # fmt: skip
     parser.add_argument("--config", metavar="FILE", help=config_help)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
     parser.add_argument(
@@ -49,6 +56,18 @@ def add_run_arguments(
     )  # fmt: skip
     parser.add_argument("--print-settings", action="store_true", help=print_help)
     add_zenoh_arguments(parser)
+
+
+def preset_layer(preset: str | None, service: str) -> dict | None:
+    """``--preset NAME``: the settings that preset gives ``service`` (None: no preset)."""
+    if preset is None:
+        return None
+    from .compose import preset_settings
+
+    try:
+        return preset_settings(preset, service)
+    except ValueError as exc:
+        raise SettingsError(f"--preset: {exc}") from None
 
 
 def service_main(
@@ -88,7 +107,10 @@ def service_main(
         args = parser.parse_args(argv)
         try:
             settings = load_settings(
-                settings_type, args.config, [*args.set, *overrides_from_args(args)]
+                settings_type,
+                args.config,
+                [*args.set, *overrides_from_args(args)],
+                preset_layer(args.preset, service),
             )
         except SettingsError as exc:
             print(f"followbot run {service}: {exc}", file=sys.stderr)

@@ -9,7 +9,6 @@ Pure logic on numpy arrays and messages, no Zenoh (the node is ``node.py``). DES
 - association.py -- units, gates and the assignment rule;
 - identity.py -- which track is the target: acquisition, late vision, rollback;
 - search.py -- where to look for a lost target;
-- retake.py -- where the laser re-takes a target it lost (identity.laser_retake);
 - report.py -- TrackState and People;
 - estimators/ -- one person's state: the particle filter, the UKF, ...
 
@@ -201,16 +200,13 @@ class Tracker:
         for t in self.tracks.values():  # the estimators that weigh every candidate keep them
             t.estimator.observe(candidates)
         z = np.array([[c.x_m, c.y_m] for c in candidates.candidates], dtype=float).reshape(-1, 2)
-        takers = self._tracks.associable(self.target_id)
-        a = self._associator.associate(takers, candidates, z, self.target_id)
+        a = self._associator.associate(self.tracks, candidates, z, self.target_id)
         learn = self._update(a, stamp)
         matched = self._lifecycle(a, stamp)
         flags += self.identity.vision_flags(stamp)
-        vision = not any(f in _NO_VISION for f in flags)
-        if self.target_id < 0:  # 6. acquisition without vision, laser re-acquisition
+        if self.target_id < 0:  # 6. acquisition without vision, laser-only re-acquisition
+            vision = not any(f in _NO_VISION for f in flags)
             self.identity.acquire_by_laser(z, matched, vision)
-        else:  # ... or a re-take from a target's track coasting past its miss budget
-            self.identity.hand_over(z, matched, vision)
         lost = self.target_id < 0 and self.identity.had_target and self.vision_alive
         self.search.step(lost, stamp)
         if self.target_id >= 0 and self.target_id in matched:
@@ -278,9 +274,9 @@ class Tracker:
                 c = a.candidates.candidates[a.unit_cand[u]]
                 a.matched[self._tracks.new(a.points[a.first[u]], stamp, c, a.candidates).id] = u
         matched = a.by_candidate(self.target_id)
-        for t in self._tracks.delete_lost(self.target_id):
+        for t in self._tracks.delete_lost():
             if t.id == self.target_id:
-                self.identity.lose_target(t, by_laser=True)
+                self.identity.lose_target(t)
             # a track its estimator gave up on even as it took a candidate (a UKF whose spread
             # outgrew its bound over a long gap) is gone: nobody may choose it as the target
             matched.pop(t.id, None)

@@ -28,9 +28,7 @@ assignment, so the target no longer jumps onto the person who hid it. ``identity
 consecutive rejections still drop the target.
 
 Re-acquisition of a lost target: by appearance, only where it can be (search.py's gate);
-by the laser as ``identity.laser_retake`` says (retake.py): without vision near where it was
-lost (``near_loss``), or, with or without vision, where the person could have walked since last
-seen (``reach``).
+without vision, by the laser near where it was lost (``laser_reacquire_*``).
 """
 
 from __future__ import annotations
@@ -48,7 +46,6 @@ from followbot.services.common.odometry import OdometryBuffer
 
 from .evidence import EVIDENCE
 from .lifecycle import ScanTime, Track, Tracks
-from .retake import RETAKES
 from .search import Search
 from .settings import TrackerSettings
 
@@ -83,7 +80,6 @@ class Identity:
         self._search = search
         self.odometry = odometry
         self._now = now
-        self._retake = RETAKES[settings.identity.laser_retake](settings, tracks, search, now)
         self.target_id = -1
         self.had_target = False
         self.vision_alive = False
@@ -118,7 +114,6 @@ class Identity:
         self.had_target = False
         self._evidence.forget()
         self._breaks.clear()
-        self._retake.forget()
 
     # ------------------------------------------------------------------ target changes
 
@@ -131,19 +126,13 @@ class Identity:
                 if i in self._tracks.by_id:
                     self._tracks.by_id[i].shift = np.zeros(2)
         self.target_id = tid
-        self._retake.forget()
         self._confirmed_index = self.index - 1  # chosen by vision (or a model) just now
         self.had_target = True
         self._search.lost_at = None
 
-    def lose_target(self, track: Track, by_laser: bool = False) -> None:
-        """The target is lost; ``by_laser``: its track ran out of misses (the laser may re-take
-        it, retake.py), else vision dropped it or the input went stale."""
+    def lose_target(self, track: Track) -> None:
+        """The target is lost: its track ran out of misses, or vision dropped it."""
         self._search.note_loss(track)
-        if by_laser:
-            self._retake.lost(track)
-        else:
-            self._retake.forget()
         self.target_id = -1
         self._evidence.forget()
 
@@ -185,7 +174,7 @@ class Identity:
     def acquire_by_laser(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
         """Without vision: the first target is the nearest person ahead (``acquire: nearest``:
         a track the initiator confirmed, by the candidate it took this scan); a lost one is
-        re-taken by the laser as identity.laser_retake says."""
+        re-taken by a walker near where it was lost, soon after."""
         s, si = self.settings, self.settings.identity
         if not self.had_target and s.acquire == "nearest" and len(z):
             r = np.hypot(z[:, 0], z[:, 1])
@@ -196,23 +185,34 @@ class Identity:
             if people:
                 self.set_target(min(people)[1])
                 return
-        if not self.had_target:
+        if not self.had_target or vision:
             return
-        best = self._retake.pick(z, matched, vision, None)
+        best = self._laser_retake(z, matched)
         if best >= 0:
             self.set_target(best)
 
-    def hand_over(self, z: np.ndarray, matched: dict[int, int], vision: bool) -> None:
-        """The target's track coasts past max_misses (``deleter: target_seconds``): a track
-        the laser re-take rule would take now takes over from it (the person came back where
-        the coasting track did not reach)."""
-        target = self._tracks.by_id.get(self.target_id)
-        if target is None or target.misses <= self.settings.max_misses:
-            return
-        best = self._retake.pick(z, matched, vision, target)
-        if best >= 0:
-            self.lose_target(target)
-            self.set_target(best)
+    def _laser_retake(self, z: np.ndarray, matched: dict[int, int]) -> int:
+        """Without vision, the track to re-take a lost target, or -1: the one nearest to where
+        the target was lost (search.py notes where), within laser_reacquire_m, walking at
+        laser_reacquire_min_speed_mps or faster, at least laser_reacquire_min_range_m from the
+        laser, within laser_reacquire_max_s of the loss."""
+        si = self.settings.identity
+        lost_at = self._search.lost_at
+        if lost_at is None or si.laser_reacquire_m <= 0:
+            return -1
+        max_s = si.laser_reacquire_max_s
+        if max_s is not None and self._now.stamp_ns - self._search.lost_ns > max_s * _NS:
+            return -1  # lost too long ago: whoever passes there now is someone else
+        best, best_d = -1, si.laser_reacquire_m
+        for tid, ci in matched.items():
+            d = float(np.hypot(*(z[ci] - lost_at)))
+            if (
+                d <= best_d
+                and float(np.hypot(*z[ci])) >= si.laser_reacquire_min_range_m
+                and self._tracks.walking(tid, si.laser_reacquire_min_speed_mps)
+            ):
+                best, best_d = tid, d
+        return best
 
     def apply_vision(self, pose: Pose | None) -> None:
         """The verifications that are due, then a new target model (step 3 of a scan)."""

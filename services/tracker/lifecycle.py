@@ -3,15 +3,8 @@
 A track starts on every candidate no track took, and is a person -- reported -- once the
 initiator says so (initiators.py: ``hits``, the thesis, after ``confirm_hits`` candidates;
 ``evidence``, once it travelled as a walker does). It counts one miss per scan without a
-candidate and is deleted by the ``deleter`` (:data:`DELETERS`) or when its estimator says so
-(the UKF's variance rule): ``misses``, after more than ``max_misses`` consecutive misses
-(thesis 3.6.2.8: 8, about 1 s at 120 ms); ``target_seconds``, the target only once unseen for
-more than ``target_keep_s`` of scan time (a gap in seconds, whatever the scan rate), the others
-so. Past max_misses that held track takes no candidate (:meth:`Tracks.associable`): it holds
-the target's identity, and the person coming back starts a track that
-``identity.laser_retake`` hands the target to. (Left competing, a standing target's held track
-took the candidates of a passer-by whose lagging track walked through it: docs/tracker_log.md,
-"Issue 35".)
+candidate and is deleted after more than ``max_misses`` consecutive misses (thesis 3.6.2.8: 8,
+about 1 s at 120 ms) or when its estimator says so (the UKF's variance rule).
 
 Coasting: a track that missed moves on at its person's recent velocity -- the median of the
 velocities between its last updates over ``coast_velocity_s`` -- instead of staying where it
@@ -38,7 +31,7 @@ from .estimators import Estimator, EstimatorFactory
 from .initiators import INITIATORS, Sighting
 from .settings import TrackerSettings
 
-__all__ = ["DELETERS", "ScanTime", "Track", "Tracks"]
+__all__ = ["ScanTime", "Track", "Tracks"]
 
 _NS = 1_000_000_000
 _I2 = np.eye(2)
@@ -95,23 +88,6 @@ class Track:
     @property
     def position(self) -> np.ndarray:
         return self.estimator.mean[:2]
-
-
-def _past_misses(s: TrackerSettings, t: Track, target_id: int, now_ns: int) -> bool:
-    """``deleter: misses``: more than max_misses consecutive misses (the thesis)."""
-    return t.misses > s.max_misses
-
-
-def _past_target_seconds(s: TrackerSettings, t: Track, target_id: int, now_ns: int) -> bool:
-    """``deleter: target_seconds``: the target once unseen longer than target_keep_s (and past
-    max_misses); the others as ``misses``."""
-    if t.misses <= s.max_misses:
-        return False
-    return t.id != target_id or now_ns - t.last_seen_ns > s.target_keep_s * _NS
-
-
-#: deleter name -> whether a track that missed its last ``misses`` scans is gone
-DELETERS = {"misses": _past_misses, "target_seconds": _past_target_seconds}
 
 
 class Tracks:
@@ -216,21 +192,12 @@ class Tracks:
             xy = _rot(pose[2]) @ xy + np.array(pose[:2])
         self.initiator.took(t, Sighting(xy, pose is not None, stamp, candidate, message))
 
-    def associable(self, target_id: int) -> dict[int, Track]:
-        """The tracks that may take candidates: every one but a target's track held past
-        max_misses by ``deleter: target_seconds``."""
-        t = self.by_id.get(target_id)
-        if self.settings.deleter == "misses" or t is None or t.misses <= self.settings.max_misses:
-            return self.by_id
-        return {tid: tr for tid, tr in self.by_id.items() if tid != target_id}
-
-    def delete_lost(self, target_id: int = -1) -> list[Track]:
-        """Delete the tracks the deleter gives up (``target_id``: the target's track, which
-        ``deleter: target_seconds`` keeps longer) or expired by their estimator; returns them."""
-        s, now = self.settings, self._now.stamp_ns
-        past = DELETERS[s.deleter]
+    def delete_lost(self) -> list[Track]:
+        """Delete the tracks past ``max_misses`` or expired by their estimator; returns them."""
         gone = [
-            t for t in self.by_id.values() if past(s, t, target_id, now) or t.estimator.expired()
+            t
+            for t in self.by_id.values()
+            if t.misses > self.settings.max_misses or t.estimator.expired()
         ]
         for t in gone:
             del self.by_id[t.id]

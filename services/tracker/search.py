@@ -236,10 +236,6 @@ class Search:
         """Vision judged track ``tid`` and said it is not the target."""
         self._rejected[tid] = self._rejected.get(tid, 0) + 1
 
-    def rejected(self, tid: int) -> bool:
-        """Vision rejected track ``tid`` since the loss."""
-        return self._rejected.get(tid, 0) > 0
-
     def forget_looks(self) -> None:
         self._look = (-1, 0)
         self._rejected.clear()

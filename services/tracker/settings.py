@@ -30,6 +30,7 @@ __all__ = [
 ]
 
 _LOG = "docs/tracker_log.md"
+_ISSUE35 = f'{_LOG} "Issue 35"'
 
 #: Settings that are gone: experiments measured and left off (their record: docs/tracker_log.md).
 RETIRED_SETTINGS: dict[str, str] = {
@@ -45,6 +46,19 @@ RETIRED_SETTINGS: dict[str, str] = {
     "look_far_walking_m": removed(f"an experiment measured and left off, see {_LOG}"),
     "look_confirm_hits": removed(f"the camera turns to a track once confirm_hits, see {_LOG}"),
     "switch_needs_target_seen": removed(f"an experiment measured and left off, see {_LOG}"),
+    "deleter": removed(
+        f"its rule target_seconds was measured and not adopted, {_ISSUE35}; a track is "
+        "deleted after max_misses"
+    ),
+    "target_keep_s": removed(f"it only applied with deleter target_seconds, {_ISSUE35}"),
+    "identity.laser_retake": removed(
+        f"its rule reach was measured and not adopted, {_ISSUE35}; the laser re-takes a "
+        "lost target near where it was lost, identity.laser_reacquire_*"
+    ),
+    "identity.retake_gate_m": removed(f"it only applied with laser_retake reach, {_ISSUE35}"),
+    "identity.retake_floor_mps": removed(f"it only applied with laser_retake reach, {_ISSUE35}"),
+    "identity.retake_young_s": removed(f"it only applied with laser_retake reach, {_ISSUE35}"),
+    "identity.retake_max_s": removed(f"it only applied with laser_retake reach, {_ISSUE35}"),
     # settings nested by role: the old flat key names the new dotted one
     "assignment": renamed("association.assignment"),
     "split_pair_m": renamed("association.split_pair_m"),
@@ -185,33 +199,9 @@ class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     """... only when that candidate also lay this far or farther from the target's prediction
     (1.25 m/s over one 120 ms scan): the target itself, seen where it was expected while its
     look changes (turning round, lighting), is not split off by a rejection."""
-    laser_retake: Literal["near_loss", "reach"] = "near_loss"
-    """How the laser re-takes a target it lost (retake.py). ``near_loss`` (without vision only):
-    the track nearest to where it was lost, within laser_reacquire_m, walking, soon after
-    (``laser_reacquire_*``). ``reach`` (beyond the thesis): from the miss budget on -- the
-    target lost, or coasting past max_misses under ``deleter: target_seconds`` -- a track not
-    tracked long before the target was last seen (retake_young_s), walking or standing, inside
-    a gate round where it was last seen that grows as far as the person could have walked
-    since (``retake_*``); the one nearest where the target should be now (moved on at its
-    velocity). With vision alive the laser re-takes too; vision confirms, or vetoes
-    (reject_votes; a track it rejected since the loss is not taken, nor after a loss vision
-    caused). docs/tracker_log.md, "Issue 35"."""
-    retake_gate_m: Annotated[float, msgspec.Meta(ge=0)] = 0.5
-    """``laser_retake: reach``: the gate's radius at the last sighting (a person's step plus
-    the drift of a track)."""
-    retake_floor_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.5
-    """``laser_retake: reach``: the gate grows at the person's recent speed, at least this (a
-    standing person can walk off while unseen)."""
-    retake_young_s: Annotated[float, msgspec.Meta(ge=0)] = 1.0
-    """``laser_retake: reach``: a track tracked already this long before the target's last
-    sighting is someone else (a passer-by crossing the gap); a younger one may be the
-    person's own, started as the target's track lost them. 0: only tracks born after it."""
-    retake_max_s: Annotated[float, msgspec.Meta(gt=0)] = 4.0
-    """``laser_retake: reach``: nobody is re-taken later than this after the last sighting
-    (the gate's radius is then 0.5 + 0.5 x 4 = 2.5 m)."""
     laser_reacquire_m: Annotated[float, msgspec.Meta(ge=0)] = 0.7
     """Without vision only: a lost target is re-taken by the track nearest to where it was
-    lost, within this distance (0: never without vision). ``laser_retake: near_loss`` only."""
+    lost, within this distance (0: never without vision)."""
     laser_reacquire_min_speed_mps: Annotated[float, msgspec.Meta(ge=0)] = 0.25
     """... and only a track walking at least this fast (its recent velocity): clutter where
     the target vanished stays put (0: any track). Beyond the thesis.
@@ -348,16 +338,6 @@ class TrackerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     the target is lost, a first target for ``acquire: nearest`` (initiators.py): ``hits``
     (the thesis) once it took confirm_hits candidates; ``evidence`` once it travelled as a
     walker does (``evidence.*``). Either way it stays a person until deleted."""
-    deleter: Literal["misses", "target_seconds"] = "misses"
-    """When a track that misses is deleted (lifecycle.py). ``misses``: after more than
-    max_misses consecutive misses, every track (the thesis; at 40 Hz that is 0.2 s).
-    ``target_seconds`` (beyond the thesis): the others so; the target only once it has not been
-    seen for more than target_keep_s of scan time (and not before max_misses), so it coasts
-    through a gap measured in seconds whatever the scan rate. Past max_misses that track takes
-    no candidate: it holds the identity until identity.laser_retake hands it to the track
-    started on the person (use with ``laser_retake: reach``). docs/tracker_log.md, "Issue 35"."""
-    target_keep_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
-    """``deleter: target_seconds``: the longest gap the target's track coasts through."""
     confirm_hits: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
     """``initiator: hits``: a new track is a person once it took this many candidates."""
     evidence: EvidenceSettings = msgspec.field(default_factory=EvidenceSettings)
