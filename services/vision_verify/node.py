@@ -164,9 +164,9 @@ class VisionVerify:
         self.acq_cands: OrderedDict[int, PersonCandidates] = OrderedDict()
         # learn.source tracker: judged scans (stamp -> frame, views, model id) awaiting the
         # tracker's state of the same stamp
-        self.judged: OrderedDict[
-            int, tuple[ImageFeatures, list[View], list[float | None], int]
-        ] = OrderedDict()
+        self.judged: OrderedDict[int, tuple[ImageFeatures, list[View], list[float | None], int]] = (
+            OrderedDict()
+        )
         self.learns = getattr(self.verifier, "update", None) is not None
         # learn.bystanders people: the tracker's people by stamp, and target states waiting
         # for the people of their stamp (the tracker publishes both per scan, in either order)

@@ -128,6 +128,22 @@ def test_a_person_cut_by_the_image_border_is_judged_on_what_is_seen():
     assert v.distances(cut, [sliver], model) == [None]
 
 
+def test_one_part_hidden_by_furniture_counts_less_than_the_others():
+    # the target behind a desk: its legs covered by a brown board; judged per body part, the
+    # worst part (the legs) counts half, so the target stays more likely than not
+    frame, views = frame_of(TARGET, OTHER)
+    img = frame.bgr.copy()
+    img[142:180, 15:65] = (40, 70, 110)  # a desk in front of the target's legs (bottom third)
+    desk = ImageFeatures(img)
+    p = {}
+    for weight in (0.5, 1.0):
+        v = make_verifier("online", {"worst_part_weight": weight})
+        model = model_of(v, frame, views[0])
+        p[weight] = [1.0 - d for d in v.distances(desk, views, model)]
+    assert p[0.5][0] > 0.5 and p[0.5][0] > p[1.0][0]
+    assert p[0.5][1] < 0.5  # someone else is still someone else
+
+
 def test_the_output_is_a_probability_and_update_leaves_the_old_model_alone():
     v = make_verifier("online")
     frame, views = frame_of(TARGET, LOOKALIKE, OTHER)
