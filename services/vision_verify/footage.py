@@ -44,7 +44,7 @@ from collections import defaultdict
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import msgspec
 import numpy as np
@@ -602,31 +602,13 @@ def evaluate(
     boxes: BoxFile,
     verifier: Verifier,
     *,
-    lags: Iterable[int] = (25, 100),
     frames: tuple[int, int | None] = (0, None),
-    min_visible: float = 0.5,
-    occlusion: bool = True,
-    adapt_rate: float = 0.02,
-    adapt_when: Literal["always", "confident"] = "always",
-    confident_max_distance: float = 0.4,
-    confident_margin: float = 0.2,
-    on_frame: Callable[[int, int, int], None] | None = None,
-    on_choice: Callable[[Choice], None] | None = None,
+    **options: Any,
 ) -> Report:
     """Both protocols (module docstring) at every lag over video frames ``frames`` [first,
-    end) (end None: up to the last frame with boxes, or the video's end).
-
-    ``adapt_rate``: the following model's update rate per frame; ``adapt_when="confident"``
-    updates only when the verifier itself picks the target with the service's rule
-    (:func:`..core.confident`: distance <= ``confident_max_distance``, ``confident_margin``
-    below every other box), ``"always"`` whenever the target's box is usable. ``on_frame(frame,
-    first, end)`` is called after each frame (progress), ``on_choice`` with every choice
-    judged."""
-    lags = sorted(set(lags))
-    if not lags or lags[0] < 1:
-        raise ValueError("lags must be whole numbers of frames >= 1")
-    if not 0.0 <= adapt_rate <= 1.0:
-        raise ValueError(f"adapt_rate must be in [0, 1], got {adapt_rate}")
+    end) (end None: up to the last frame with boxes, or the video's end); ``options`` are
+    :func:`evaluate_frames`'s (lags, box usability, the following model's update rule,
+    callbacks)."""
     first = frames[0]
     end = frames[1] if frames[1] is not None else max(boxes.frames) + 1
     if first < 0 or end <= first:
@@ -634,12 +616,7 @@ def evaluate(
     cap = open_video(video)
     try:
         frames_in = ((f, bgr, boxes.frames.get(f, [])) for f, bgr in _read_frames(cap, first, end))
-        report = evaluate_frames(
-            frames_in, str(video), verifier, lags=lags, end=end,
-            min_visible=min_visible, occlusion=occlusion, adapt_rate=adapt_rate,
-            adapt_when=adapt_when, confident_max_distance=confident_max_distance,
-            confident_margin=confident_margin, on_frame=on_frame, on_choice=on_choice,
-        )  # fmt: skip
+        report = evaluate_frames(frames_in, str(video), verifier, end=end, **options)
     finally:
         cap.release()
     read = report.frames[1]
@@ -670,7 +647,14 @@ def evaluate_frames(
     """:func:`evaluate` on frames from anywhere (a video, a simulator): ``frames`` yields
     (frame index, BGR image, the frame's boxes) in increasing index, the last below ``end``
     (choices are made only for model frames at least a lag before ``end``); ``name`` names the
-    source in the report."""
+    source in the report.
+
+    ``adapt_rate``: the following model's update rate per frame; ``adapt_when="confident"``
+    updates only when the verifier itself picks the target with the service's rule
+    (:func:`..core.confident`: distance <= ``confident_max_distance``, ``confident_margin``
+    below every other box), ``"always"`` whenever the target's box is usable. ``on_frame(frame,
+    first, end)`` is called after each frame (progress), ``on_choice`` with every choice
+    judged."""
     lags = sorted(set(lags))
     if not lags or lags[0] < 1:
         raise ValueError("lags must be whole numbers of frames >= 1")

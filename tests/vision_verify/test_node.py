@@ -492,6 +492,27 @@ def test_any_candidates_any_pan_never_fail(model_file, xy, pan):
     assert v.chosen == -1 or v.candidates[v.chosen].in_view
 
 
+def online_judged(tmp_path, **learn):
+    """A vision_verify with an online model of person 1 (``learn`` settings) that judged the
+    crossing frame: the rig, the candidates, the verification, person 1's and 2's judged
+    candidates."""
+    from followbot.services.vision_verify.verifiers.online import OnlineVerifier
+
+    camera, acq, _ = acquired_scene()
+    path = tmp_path / "online.model"
+    save_model(path, build_model(OnlineVerifier(), camera, acq, 3).to_message())
+    rig = loaded(path, verifier="online", learn=learn)
+    px, pan, cands, truth = crossing_frame()
+    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
+    rig.put("perception/candidates", cands)
+    (v,) = rig.verifications()
+    people = [
+        next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == who)
+        for who in (1, 2)
+    ]
+    return rig, cands, v, people
+
+
 @pytest.mark.parametrize(("agree", "on_target", "learnt"), [
     (0.3, True, True),    # the tracker follows whom vision also takes for the target
     (0.3, False, False),  # the tracker follows the bystander: not learnt as the target
@@ -501,18 +522,8 @@ def test_an_online_verifier_learns_the_tracker_s_target_only_when_it_agrees(
     tmp_path, agree, on_target, learnt
 ):
     from followbot.schemas import TrackState
-    from followbot.services.vision_verify.verifiers.online import OnlineVerifier
 
-    camera, acq, _ = acquired_scene()
-    path = tmp_path / "online.model"
-    save_model(path, build_model(OnlineVerifier(), camera, acq, 3).to_message())
-    rig = loaded(path, verifier="online", learn={"agree_max_distance": agree})
-    px, pan, cands, truth = crossing_frame()
-    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
-    rig.put("perception/candidates", cands)
-    (v,) = rig.verifications()
-    mine = next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == 1)
-    other = next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == 2)
+    rig, cands, _, (mine, other) = online_judged(tmp_path, agree_max_distance=agree)
     assert mine.probability > 0.7 > other.probability
     followed = mine if on_target else other
     before = rig.svc.model.features["state"][0]  # target views seen
@@ -528,7 +539,7 @@ def test_an_online_verifier_learns_the_tracker_s_target_only_when_it_agrees(
     assert (rig.svc.counts.get("learn_not_agreed", 0) == 1) == (not learnt)
 
 
-def people_at(stamp_ns, target, *others, clutter=()):
+def people_at(stamp_ns, target, *others):
     from followbot.schemas import People, PersonTrack
 
     tracks = [PersonTrack(id=1, x_m=target.x_m, y_m=target.y_m)]
@@ -541,17 +552,8 @@ def test_only_the_tracker_s_other_people_are_learnt_as_bystanders(tmp_path, byst
     """learn.bystanders: people -- a candidate on none of the tracker's people (clutter) is
     not learnt as a bystander; candidates -- every other candidate is."""
     from followbot.schemas import TrackState
-    from followbot.services.vision_verify.verifiers.online import OnlineVerifier
 
-    camera, acq, _ = acquired_scene()
-    path = tmp_path / "online.model"
-    save_model(path, build_model(OnlineVerifier(), camera, acq, 3).to_message())
-    rig = loaded(path, verifier="online", learn={"bystanders": bystanders})
-    px, pan, cands, truth = crossing_frame()
-    rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
-    rig.put("perception/candidates", cands)
-    (v,) = rig.verifications()
-    mine = next(c for c in v.candidates if owner(cands.candidates[c.index], truth) == 1)
+    rig, cands, v, (mine, _) = online_judged(tmp_path, bystanders=bystanders)
     rig.put("tracking/people", people_at(cands.stamp_ns, mine))  # nobody else is a person
     rig.put(
         "tracking/target",
