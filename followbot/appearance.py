@@ -75,13 +75,17 @@ def _fraction(text: str) -> float:
 
 
 def _service_defaults() -> dict:
-    """The vision_verify service's defaults this command follows (one place for them): its
-    verifier, and the rule by which a choice counts as confident (``learn.confident_*``)."""
+    """The vision_verify defaults this command follows (one place for them): the default
+    preset's verifier (followbot's, as `track`, `eval` and `demo` run), and the service's rule
+    by which a choice counts as confident (``learn.confident_*``)."""
+    from followbot.presetargs import DEFAULT_PRESET
+    from followbot.services.runtime.compose import PRESETS
     from followbot.services.vision_verify.settings import VisionVerifySettings
 
     s = VisionVerifySettings()
+    preset = PRESETS[DEFAULT_PRESET].get("vision_verify", {})
     return {
-        "verifier": s.verifier,
+        "verifier": preset.get("verifier", s.verifier),
         "confident_max_distance": s.learn.confident_max_distance,
         "confident_margin": s.learn.confident_margin,
     }
@@ -109,7 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--verifier", metavar="NAME",
-        help="histogram, face, meanshift or any installed verifier (default: the service's)",
+        help="online, histogram, face, meanshift, colour or any installed verifier "
+        "(default: the followbot preset's, online)",
     )  # fmt: skip
     p.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE",
