@@ -153,7 +153,8 @@ def test_the_command_prints_the_table_and_writes_json_and_a_plot(clip, tmp_path)
     # the installed console script, as a user runs it
     run = subprocess.run(
         [Path(sys.executable).parent / "followbot", "appearance", str(video), str(boxes),
-         "--lags", "10,25", "--adapt-rate", "0.1", "--json", str(out), "--plot", str(png)],
+         "--lags", "10,25", "--adapt-rate", "0.1", "--json", str(out), "--plot", str(png),
+         "--verifier", "histogram"],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr
@@ -163,6 +164,13 @@ def test_the_command_prints_the_table_and_writes_json_and_a_plot(clip, tmp_path)
     assert summary["verifier"] == "histogram" and summary["frames"] == [0, 40]
     assert summary["boxes_file"]["format"] == "csv" and summary["boxes_file"]["boxes"] == 120
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_default_verifier_is_the_default_preset_s():
+    from followbot.appearance import _service_defaults
+    from followbot.services.runtime.compose import PRESETS
+
+    assert _service_defaults()["verifier"] == PRESETS["followbot"]["vision_verify"]["verifier"]
 
 
 def test_verifier_settings_and_frames_are_applied(clip, capsys):
