@@ -256,7 +256,6 @@ def horizon_covers(
     half_width_m: float,
     max_leg_m: float = 0.25,
     jump_m: float = 0.1,
-    walls: bool = False,
 ) -> np.ndarray:
     """(k, 3) ``depth, u0, u1``: the image columns that the person above each leg-like laser
     return of ``horizon`` (the scan's nearest return per bearing bin, laser frame) would hide,
@@ -271,10 +270,7 @@ def horizon_covers(
     legs is narrow too, but lies behind them. Each of its returns is widened
     ``half_width_m`` to each side (the body above the leg). Wider runs -- walls, a pillar's
     face, furniture -- say nothing of what stands above them and hide nothing here (widened,
-    they hid a target coming out beside a pillar: 76 closed-loop runs, docs/tracker_log.md).
-    ``walls``: every other return hides its own bin's columns too (not widened): what the
-    laser sees at leg height is at least that wide above it -- a partition, a pillar, a wall's
-    end."""
+    they hid a target coming out beside a pillar: 76 closed-loop runs, docs/tracker_log.md)."""
     r = horizon.ranges.numpy().astype(np.float64)
     n = r.shape[0]
     centre = horizon.angle_min_rad + (np.arange(n) + 0.5) * horizon.increment_rad
@@ -290,13 +286,12 @@ def horizon_covers(
     with np.errstate(invalid="ignore"):
         standing = (padded[starts] >= r[starts] + jump_m) & (padded[ends + 2] >= r[ends] + jump_m)
     leg_run = np.repeat((width <= max_leg_m) & standing, ends - starts + 1)
-    keep = seen & leg_run if not walls else seen
-    body = leg_run[keep]  # widened by a body's half width
+    keep = seen & leg_run
     r, x, y = r[keep], x[keep], y[keep]
     xc, yc = camera.to_camera(x, y, pan_rad)
     front = xc >= camera.min_depth_m
-    xc, yc, r, body = xc[front], yc[front], r[front], body[front]
-    half = np.where(body, half_width_m, 0.0) + 0.5 * r * horizon.increment_rad  # + the bin
+    xc, yc, r = xc[front], yc[front], r[front]
+    half = half_width_m + 0.5 * r * horizon.increment_rad  # the bin's own width too
     u0 = camera.column(xc, yc + half)  # (y_c to the left: smaller columns)
     u1 = camera.column(xc, yc - half)
     inside = (u1 > 0) & (u0 < camera.width)
@@ -797,7 +792,6 @@ def judge(
     horizon_margin_m: float | None = None,
     horizon_half_width_m: float = 0.2,
     abstain_fraction: float | None = None,
-    abstain_walls: bool = False,
     **project_kw,
 ) -> Judgement:
     """Project every candidate, cut what nearer candidates hide (:func:`occlude`; None: not)
@@ -830,8 +824,6 @@ def judge(
         for v, d in zip(views, distances, strict=True)
     ]
     if abstain_fraction is not None and covers is not None and threshold is not None:
-        if abstain_walls:  # walls and furniture in front withhold a rejection too
-            covers = horizon_covers(camera, horizon, pan_rad, horizon_half_width_m, walls=True)
         for i, (v, d) in enumerate(zip(views, distances, strict=True)):
             if d is None or d <= threshold:
                 continue

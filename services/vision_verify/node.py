@@ -416,7 +416,6 @@ class VisionVerify:
                 horizon_margin_m=self.s.occlusion.laser_margin_m,
                 horizon_half_width_m=self.s.occlusion.laser_half_width_m,
                 abstain_fraction=self.s.occlusion.laser_abstain_fraction,
-                abstain_walls=self.s.occlusion.laser_walls,
                 min_side_px=self.s.min_rect_side_px,
                 max_width_factor=self.s.max_rect_width_factor,
             )

@@ -88,12 +88,6 @@ class OcclusionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
     when it rejects (the tracker then counts no rejection). None: cut the covered columns from
     the rectangle, as nearer candidates' (min_visible_fraction). Default from the closed-loop
     runs of docs/tracker_log.md."""
-    laser_walls: bool = True
-    """With laser_abstain_fraction: every other return of the horizon nearer than a candidate
-    (a partition, a pillar, furniture: not widened, each covers its own bin) counts too, so a
-    target half behind a partition is not rejected for the partition's pixels
-    (hidden_target_bystanders, docs/tracker_log.md "Issue 36"). Only for abstaining: a view
-    that matches is still trusted. False: leg-like returns only."""
 
 
 class FileSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
