@@ -261,10 +261,6 @@ class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     a desk in front of the legs, a bag or an arm counts less, while a lookalike who differs
     in one part only still differs. 1: every part alike; 0: the worst left out (pets09
     following at 100 frames 78.6 -> 81.2 %, but a passer-by in the target's shirt passes)."""
-    min_width_seen: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.7
-    """A candidate whose window the image border or a nearer candidate cut to under this share
-    of its width is not judged (nor learnt): half a person stretched over the patch looks
-    like no one, and its rejection would count against the target walking out of view."""
     person_width_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.6
     """The columns looked at: at most this wide at the candidate's depth, centred on its
     bearing (the model's rectangle comes from the acquisition's motion blob, which can hold
@@ -412,16 +408,11 @@ class OnlineVerifier:
     def _view_features(self, frame: ImageFeatures, v: View) -> np.ndarray | None:
         if not v.ok or v.rect is None:
             return None
-        window = self._window(frame, v.rect, v, self.settings.min_width_seen)
-        return None if window is None else self.features(frame, window, v.body)
+        return self.features(frame, self._window(frame, v.rect, v), v.body)
 
-    def _window(
-        self, frame: ImageFeatures, rect: Rect, v: View, min_seen: float = 0.0
-    ) -> Rect | None:
+    def _window(self, frame: ImageFeatures, rect: Rect, v: View) -> Rect:
         """``rect``'s columns within ``person_width_m`` of the view's bearing (the rectangle
-        as it is without a camera in the frame's cache, a depth or a column); None when the
-        image border or a nearer candidate left under ``min_seen`` of that width (a half
-        person stretched over the whole patch looks like no one)."""
+        as it is without a camera in the frame's cache, a depth or a column)."""
         camera = frame.cache.get("camera")
         width = self.settings.person_width_m
         if camera is None or width is None or not (v.depth_m > 0 and math.isfinite(v.u_px)):
@@ -429,12 +420,7 @@ class OnlineVerifier:
         half = 0.5 * camera.f * width / v.depth_m
         x0, y0, x1, y1 = rect
         a, b = max(x0, round(v.u_px - half)), min(x1, round(v.u_px + half))
-        if b - a < 2:
-            return rect
-        whole = 2 * half
-        if v.body is not None:  # the person's own rectangle may be narrower than the window
-            whole = min(whole, v.body[2] - v.body[0])
-        return (a, y0, b, y1) if b - a >= min_seen * whole else None
+        return (a, y0, b, y1) if b - a >= 2 else rect
 
     # ------------------------------------------------------------------ the Verifier protocol
 
@@ -529,7 +515,9 @@ class OnlineVerifier:
         view in view as a bystander (a new dict; the model's arrays are not changed). None
         when the target's view has no pixels."""
         tv = views[target]
-        x_t = self._view_features(frame, tv)
+        x_t = None
+        if tv.rect is not None:
+            x_t = self.features(frame, self._window(frame, tv.rect, tv), tv.body)
         if x_t is None:
             return None
         f = model.features
