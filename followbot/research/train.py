@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 import time
 from pathlib import Path
@@ -107,34 +106,14 @@ FOLDS = 4
 class ScanData:
     """Features, centroids and (for labelled scans) leg labels of one scan."""
 
-    __slots__ = (
-        "clutter",
-        "counts",
-        "cx",
-        "cy",
-        "features",
-        "legs",
-        "oof",
-        "poses",
-        "scan",
-        "score",
-    )
+    __slots__ = ("counts", "cx", "cy", "features", "legs", "oof", "poses", "scan", "score")
 
-    def __init__(
-        self,
-        scan,
-        legs_xy: np.ndarray | None,
-        s: LearnedSettings,
-        clutter_xy: np.ndarray | None = None,
-    ) -> None:
+    def __init__(self, scan, legs_xy: np.ndarray | None, s: LearnedSettings) -> None:
         seg = segments(
             scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
         )
         self.features, self.cx, self.cy = features_and_centroids(seg)
         self.legs = legs_xy
-        self.clutter = clutter_xy
-        """Centroids of clutter copied into the scan (:func:`crowded`): non-legs wherever they
-        stand, also within ``far_m`` of a label."""
         self.scan = scan
         self.score = np.zeros(self.features.shape[0])
         self.oof = self.score
@@ -165,8 +144,6 @@ def samples(data: list[ScanData], far_m: float, near_m: float = MATCH_RADIUS_M):
             continue
         dist = _nearest(d.cx, d.cy, d.legs)
         pos, neg = dist <= near_m, dist > far_m
-        if d.clutter is not None:
-            neg |= (_nearest(d.cx, d.cy, d.clutter) <= near_m) & ~pos
         X += [d.features[pos], d.features[neg]]
         Y += [np.ones(int(pos.sum()), np.int32), np.zeros(int(neg.sum()), np.int32)]
     return np.vstack(X), np.concatenate(Y)
@@ -207,171 +184,6 @@ def noisy(scan, rng: np.random.Generator, noise_m: float):
         range_max_m=scan.range_max_m,
         frame_id=scan.frame_id,
     )
-
-
-#: Labels closer than this are one person (thesis 4.3.3: a leg pair is < 500 mm apart).
-PAIR_M = 0.5
-#: A person's twin stands this far to one side of them (people walking side by side).
-TWIN_LATERAL_M = (0.45, 1.0)
-#: A clutter copy stands this far to one side of the clutter or person it is put beside.
-CLUTTER_LATERAL_M = (0.3, 1.0)
-#: A clutter segment is put beside a person when its range is within this of theirs (a copy
-#: is only turned about the laser, so its range and shape stay as recorded).
-CLUTTER_RANGE_M = 0.7
-
-
-class _Crowd:
-    """A scan being crowded (:func:`crowded`): the recorded ranges ``r0`` and points, the
-    ranges written so far ``r``, and the beams clutter copies may not cover (people)."""
-
-    def __init__(self, scan) -> None:
-        self.r0 = scan.ranges_m().astype(np.float64)
-        self.n = self.r0.shape[0]
-        self.inc = float(scan.angle_increment_rad)
-        bearing = float(scan.angle_min_rad) + self.inc * np.arange(self.n)
-        self.lo, self.hi = float(scan.range_min_m), float(scan.range_max_m)
-        self.ok = self._valid(self.r0)
-        self.x = np.where(self.ok, self.r0 * np.cos(bearing), np.inf)
-        self.y = np.where(self.ok, self.r0 * np.sin(bearing), np.inf)
-        self.r = self.r0.copy()
-        self.people = np.zeros(self.n, dtype=bool)
-
-    def _valid(self, r: np.ndarray) -> np.ndarray:
-        return np.isfinite(r) & (r > self.lo) & (r < self.hi)
-
-    def shift(self, rho: float, lateral_m: tuple, rng) -> int:
-        """Beams to turn something ``rho`` m away by so that it moves a random distance in
-        ``lateral_m`` to one side."""
-        return round(rng.uniform(*lateral_m) / max(rho, 0.1) / abs(self.inc)) * int(
-            rng.choice((-1, 1))
-        )
-
-    def copy(self, beams: np.ndarray, shift: int, over_people: bool) -> np.ndarray:
-        """Write the recorded returns of ``beams`` ``shift`` beams away, each only where it is
-        nearer than what is there (what stands in front still hides it) and, unless
-        ``over_people``, not over a person's beams. Returns which of ``beams`` were written."""
-        dest = beams + shift
-        can = self.ok[beams] & (dest >= 0) & (dest < self.n)
-        d = np.clip(dest, 0, self.n - 1)
-        there = self._valid(self.r[d])
-        can &= ~(there & (self.r[d] <= self.r0[beams]))
-        if not over_people:
-            can &= ~self.people[d]
-        self.r[d[can]] = self.r0[beams[can]]
-        return can
-
-    def turned(self, xy: np.ndarray, shift: int) -> np.ndarray:
-        c, s_ = math.cos(shift * self.inc), math.sin(shift * self.inc)
-        return np.column_stack([c * xy[:, 0] - s_ * xy[:, 1], s_ * xy[:, 0] + c * xy[:, 1]])
-
-    def near(self, beams: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """(len(beams), len(xy)): whether each beam's return lies within MATCH_RADIUS_M of
-        each point."""
-        dx = self.x[beams, None] - xy[None, :, 0]
-        return np.hypot(dx, self.y[beams, None] - xy[None, :, 1]) < MATCH_RADIUS_M
-
-
-def _people(cr: _Crowd, legs_xy: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(beams, labels) of each person: labels within PAIR_M of each other, and the beams
-    whose return lies within MATCH_RADIUS_M of one of them."""
-    out, used = [], np.zeros(legs_xy.shape[0], dtype=bool)
-    every = np.arange(cr.n)
-    for i in range(legs_xy.shape[0]):
-        if used[i]:
-            continue
-        group = ~used & (np.hypot(*(legs_xy - legs_xy[i]).T) < PAIR_M)
-        used |= group
-        beams = every[cr.near(every, legs_xy[group]).any(axis=1)]
-        if beams.shape[0]:
-            out.append((beams, legs_xy[group]))
-    return out
-
-
-def _twins(cr: _Crowd, people, rng) -> tuple[list[np.ndarray], list[tuple[np.ndarray, float]]]:
-    """A twin beside each person: (the twins' labelled legs, (beams, range) of every person,
-    real and twin)."""
-    labels, persons = [], []
-    for beams, legs in people:
-        rho = float(np.hypot(*legs.mean(axis=0)))
-        shift = cr.shift(rho, TWIN_LATERAL_M, rng)
-        written = cr.copy(beams, shift, over_people=True)
-        mine = cr.near(beams, legs)
-        for j in range(legs.shape[0]):
-            if mine[:, j].any() and written[mine[:, j]].mean() >= 0.5:
-                labels.append(cr.turned(legs[j : j + 1], shift))
-        persons += [(beams, rho), (beams + shift, rho)]
-    for beams, _ in persons:
-        cr.people[np.clip(beams, 0, cr.n - 1)] = True
-    return labels, persons
-
-
-def _clutter(scan, legs_xy: np.ndarray, s: LearnedSettings, far_m: float):
-    """(beams, range, centroid) of each clutter segment: farther than ``far_m`` from every
-    label."""
-    seg = segments(
-        scan, s.cluster_gap_m, s.min_points, s.max_width_m, s.max_range_m, s.dropout_beams
-    )
-    out = []
-    for a, b in zip(seg.starts, seg.ends, strict=True):
-        c = np.array([[seg.x[a : b + 1].mean(), seg.y[a : b + 1].mean()]])
-        if _nearest(c[:, 0], c[:, 1], legs_xy)[0] > far_m and seg.beam[a] <= seg.beam[b]:
-            beams = np.arange(seg.beam[a], seg.beam[b] + 1)
-            out.append((beams, float(np.hypot(*c[0])), c))
-    return out
-
-
-def crowded(scan, legs_xy, s: LearnedSettings, rng, far_m: float, clutter_share: float):
-    """``scan`` crowded: people beside people, clutter beside clutter and beside people.
-
-    Returns (scan, labels, centroids of the clutter copies). Every copy is recorded returns
-    turned about the laser by whole beams (a real leg's or object's shape, noise and dropouts
-    at its recorded range), written only where nearer than what is there:
-
-    * each labelled person gets a twin TWIN_LATERAL_M to one side; a twin leg is labelled
-      when half its returns were written;
-    * each clutter segment (farther than ``far_m`` from every label; every segment of a
-      negative scan) gets, with probability ``clutter_share``, a copy CLUTTER_LATERAL_M
-      beside itself;
-    * each person (real or twin) gets, with the same probability, a copy of a clutter segment
-      of the scan at about their range (within CLUTTER_RANGE_M) CLUTTER_LATERAL_M to one side.
-
-    Clutter copies never cover a person's returns; their centroids are returned so that the
-    segments there are non-legs even near a person. The real recordings hold almost no person
-    with others within 1 m, so the forest learned "other segments near: not a leg" (issue 35);
-    with people alone copied it learned the opposite and accepted clutter in clusters
-    (docs/laser_legs.md), hence the clutter copies."""
-    from followbot.schemas import LaserScan
-
-    cr = _Crowd(scan)
-    labels = np.zeros((0, 2)) if legs_xy is None else legs_xy
-    twin_labels, persons = _twins(cr, _people(cr, labels), rng)
-    clutter = _clutter(scan, labels, s, far_m)
-    copies = []
-    for beams, rho, c in clutter:
-        if rng.random() < clutter_share:
-            shift = cr.shift(rho, CLUTTER_LATERAL_M, rng)
-            if cr.copy(beams, shift, over_people=False).mean() >= 0.5:
-                copies.append(cr.turned(c, shift))
-    for beams, rho in persons:
-        near = [k for k, (_, r_, _) in enumerate(clutter) if abs(r_ - rho) < CLUTTER_RANGE_M]
-        if not near or rng.random() >= clutter_share:
-            continue
-        cb, _, c = clutter[near[int(rng.integers(len(near)))]]
-        # turn the clutter to the person's bearing, then to one side of them
-        shift = round(float(beams.mean() - cb.mean())) + cr.shift(rho, CLUTTER_LATERAL_M, rng)
-        if cr.copy(cb, shift, over_people=False).mean() >= 0.5:
-            copies.append(cr.turned(c, shift))
-    out = LaserScan.from_ranges(
-        cr.r.astype(np.float32),
-        stamp_ns=scan.stamp_ns,
-        angle_min_rad=scan.angle_min_rad,
-        angle_increment_rad=scan.angle_increment_rad,
-        range_min_m=scan.range_min_m,
-        range_max_m=scan.range_max_m,
-        frame_id=scan.frame_id,
-    )
-    legs = np.vstack([labels, *twin_labels]) if legs_xy is not None else None
-    return out, legs, (np.vstack(copies) if copies else np.zeros((0, 2)))
 
 
 def fit(X: np.ndarray, Y: np.ndarray, trees: int, depth: int, leg_prior: float, seed: int):
@@ -688,27 +500,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--augment", type=int, default=2, help="noisy copies of each real scan")
     p.add_argument("--augment-noise-m", type=float, default=0.005)
-    p.add_argument(
-        "--crowd",
-        type=int,
-        default=0,
-        help="crowded copies of each real scan (people beside people, clutter beside clutter "
-        "and people; fits only)",
-    )
-    p.add_argument(
-        "--crowd-clutter-share",
-        type=float,
-        default=0.5,
-        help="in a crowded copy, the chance that a clutter segment or a person gets clutter "
-        "beside it (0: people's twins only)",
-    )
-    p.add_argument(
-        "--drop-features",
-        nargs="*",
-        default=[],
-        choices=FEATURES,
-        help="features held constant in the fits (the forest cannot split on them)",
-    )
     p.add_argument("--sim-scans", type=int, default=0, help="scans per simulator scenario")
     p.add_argument(
         "--background-memories",
@@ -745,12 +536,6 @@ def main(argv: list[str] | None = None) -> int:
             aug[k] += [
                 ScanData(noisy(d.scan, rng, args.augment_noise_m), None, s) for d in neg_folds[k]
             ]
-        for _ in range(args.crowd):
-            for d in (*pos[k], *neg_folds[k]):
-                scan, legs, copies = crowded(
-                    d.scan, d.legs, s, rng, args.far_negatives_m, args.crowd_clutter_share
-                )
-                aug[k].append(ScanData(scan, legs, s, copies))
     sim = simulated(args.sim_scans, s, args.seed) if args.sim_scans else []
     log.info(
         "features of %d scans in %.1f s",
@@ -762,7 +547,6 @@ def main(argv: list[str] | None = None) -> int:
     for k in range(FOLDS):
         train = [d for j in range(FOLDS) if j != k for d in (*pos[j], *neg_folds[j], *aug[j])]
         X, Y = samples([*train, *sim], args.far_negatives_m)
-        X[:, [FEATURES.index(f) for f in args.drop_features]] = 0.0
         model = fit(X, Y, args.trees, args.depth, args.leg_prior, args.seed)
         score_data(model, [*pos[k], *neg_folds[k]])
         log.info("fold %d: fitted on %d segments (%d legs)", k, len(Y), int(Y.sum()))
@@ -839,7 +623,6 @@ def main(argv: list[str] | None = None) -> int:
 
     # 5. the final model on all the training data
     X, Y = samples([*all_pos, *neg, *(d for a in aug for d in a), *sim], args.far_negatives_m)
-    X[:, [FEATURES.index(f) for f in args.drop_features]] = 0.0
     model = fit(X, Y, args.trees, args.depth, args.leg_prior, args.seed)
     save_model(model, args.output)
     out.write(
