@@ -3,6 +3,10 @@
 Reproducible (fixed seeds, fixed data split); writes the model shipped with the package,
 ``services/laser_legs/models/learned_rtrees.yml.gz``, and prints the cross-validation figures
 and the chosen thresholds (``LearnedSettings.threshold`` / ``pair_threshold``).
+The shipped file was written with the segmentation before commit 8e22a55 (no dropout
+bridging, no range limit, edge segments kept), so today's code writes another forest, the same
+one on every run; docs/laser_legs.md ("Issue 35, people near people") gives the command that
+reproduces the shipped file byte for byte.
 
 Training data (the held-out split; the held-out bags positive_6, positive_7 and negative_2's
 /rear_scan and /right_scan are never read here):
