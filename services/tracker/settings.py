@@ -175,7 +175,7 @@ class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     evidence_look_max: Annotated[float, msgspec.Meta(gt=0)] = 2.0
     """``probability``: one look adds at most +-this (p 0.12 / 0.88): a probability is
     calibrated on people in view, not on a view of furniture the laser missed in front of the
-    target (bellotto_cluttered_office: one look at p 0.00 dropped a target held at p 0.98)."""
+    target (docs/tracker_log.md "Issue 36")."""
     evidence_veto: Annotated[float, msgspec.Meta(lt=0)] = -2.0
     """``probability``: the target is dropped once its sum is at or below this (from the cap:
     four looks at p 0.2, or three at p 0.12 and below)."""

@@ -148,8 +148,7 @@ class LearnSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """``source: tracker``: the tracker's target is learnt only when the verifier's own
     distance for it is at most this (online: p >= 0.7), so a person the tracker took by
     mistake is not learnt as the target, which would make the mistake look right from then
-    on (crowd_ten: a bystander re-taken at p 0.55 rose to 0.95 while the target fell to 0.16).
-    None: whatever the tracker follows."""
+    on (docs/tracker_log.md "Issue 36"). None: whatever the tracker follows."""
     scans: Annotated[int, msgspec.Meta(ge=1, le=64)] = 8
     """``source: tracker``: judged scans kept waiting for the tracker's state of their stamp
     (it comes after the verification, which the tracker uses)."""

@@ -259,8 +259,8 @@ class OnlineSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """A candidate is judged per body part (top, middle, bottom third); with all three seen,
     the worst-matching part counts this much against 1 for the others, so one part changed by
     a desk in front of the legs, a bag or an arm counts less, while a lookalike who differs
-    in one part only still differs. 1: every part alike; 0: the worst left out (pets09
-    following at 100 frames 78.6 -> 81.2 %, but a passer-by in the target's shirt passes)."""
+    in one part only still differs. 1: every part alike; 0: the worst left out (then a
+    passer-by in the target's shirt passes; docs/vision_verify.md has the figures)."""
     person_width_m: Annotated[float, msgspec.Meta(gt=0)] | None = 0.6
     """The columns looked at: at most this wide at the candidate's depth, centred on its
     bearing (the model's rectangle comes from the acquisition's motion blob, which can hold
