@@ -128,6 +128,32 @@ def test_a_person_cut_by_the_image_border_is_judged_on_what_is_seen():
     assert v.distances(cut, [sliver], model) == [None]
 
 
+def test_what_the_target_never_showed_does_not_move_the_learnt_weights():
+    # near the camera the target's head is always above the image, the bystanders' is not:
+    # the dimensions no target view saw are not compared when judging, so learning leaves
+    # their weights where the prior put them (a bystander's look there says nothing about
+    # how it differs from the target)
+    v = make_verifier("online")
+    img = np.full((H, W, 3), 128, dtype=np.uint8)
+    img[0:80, 20:60] = person(*TARGET)[40:120]
+    img[60:180, 100:140] = person(*OTHER)
+    frame = ImageFeatures(img)
+    target = View(index=0, x_m=3.0, y_m=0.0, depth_m=3.0, rect=(20, 0, 60, 80),
+                  body=(20.0, -40.0, 60.0, 80.0))  # fmt: skip
+    other = View(index=1, x_m=3.0, y_m=1.0, depth_m=3.0, rect=(100, 60, 140, 180))
+    model = model_of(v, frame, target)
+    for k in range(3):
+        model = msgspec.structs.replace(
+            model, model_id=2 + k, features=v.update(frame, [target, other], 0, model)
+        )
+    unseen = np.isnan(v.features(frame, target.rect, target.body))
+    assert unseen.any() and not unseen.all()
+    prior = model_of(v, frame, target).features["state"][3:]
+    w = model.features["state"][3:]
+    np.testing.assert_allclose(w[unseen], prior[unseen], rtol=1e-5)
+    assert not np.allclose(w[~unseen], prior[~unseen])  # what both showed is learnt
+
+
 def test_one_part_hidden_by_furniture_counts_less_than_the_others():
     # the target behind a desk: its legs covered by a brown board; judged per body part, the
     # worst part (the legs) counts half, so the target stays more likely than not

@@ -596,14 +596,17 @@ def _mean_seen(bank: np.ndarray) -> np.ndarray:
 
 def _differences(targets: np.ndarray, bystanders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """|each target view - the mean of the others| and |each bystander - the target's mean|,
-    with the differences not seen filled by their class's mean (0 where none was seen)."""
+    with the differences not seen filled by their class's mean (0 where none was seen). The
+    target's mean is :func:`_mean_seen`'s, the one judging uses: a dimension no target view
+    saw is not compared (a bystander's |b - 0| there would pull a weight the judgement never
+    uses on the target's mean)."""
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns give NaN, filled below
         n = len(targets)
         seen = ~np.isnan(targets)
         total = np.where(seen, targets, 0.0).sum(axis=0)
         count = seen.sum(axis=0)
-        mu = total / np.maximum(count, 1)
+        mu = np.where(count > 0, total / np.maximum(count, 1), np.nan)  # as _mean_seen
         if n > 1:  # each target view against the mean of the others (not of itself)
             others = (total - np.where(seen, targets, 0.0)) / np.maximum(count - seen, 1)
             others[(count - seen) == 0] = np.nan
