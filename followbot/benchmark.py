@@ -71,6 +71,7 @@ import argparse
 import contextlib
 import csv
 import io
+import itertools
 import json
 import math
 import os
@@ -1071,6 +1072,72 @@ def _throughput_md(d: dict) -> list[str]:
 # --------------------------------------------------------------------------- plots
 
 
+def top_down(ax, run: LogRun, gap_s: float = 0.5) -> None:
+    """``run``'s people tracks seen from above (REP-103: x forward, up; y left, to the left),
+    thin grey, and the target thick, one colour per track id it was on: a star where the
+    target was first chosen, a cross where it was lost (status no longer tracking or
+    coasting), a circle where it was taken back. A track's line breaks where it was not
+    published for ``gap_s``."""
+    lines: dict[int, list[list[tuple[float, float]]]] = {}
+    last: dict[int, int] = {}
+    for s in run.stamps:
+        for i, x, y in run.people.get(s, []):
+            if i not in lines or s - last[i] > gap_s * 1e9:
+                lines.setdefault(i, []).append([])
+            lines[i][-1].append((x, y))
+            last[i] = s
+    for pieces in lines.values():
+        for piece in pieces:
+            xs, ys = zip(*piece, strict=True)
+            ax.plot(ys, xs, color="0.6", lw=0.6)
+    target: list[tuple[int, float, float] | None] = []
+    for s in run.stamps:
+        t = run.targets.get(s)
+        if t is not None:
+            target.append((t[1], t[2], t[3]) if t[0] in HAS_TARGET else None)
+    colours = itertools.cycle(f"C{k}" for k in range(10))  # one per track id, repeating
+    seen: dict[int, str] = {}
+    piece: list[tuple[float, float]] = []
+    prev = None
+    marks = {"first chosen": [], "lost": [], "taken back": []}
+
+    def flush(tid) -> None:
+        if piece and tid is not None:
+            xs, ys = zip(*piece, strict=True)
+            ax.plot(ys, xs, color=seen[tid], lw=2.2, alpha=0.85)
+
+    for now in target:
+        if prev is not None and (now is None or now[0] != prev[0]):
+            flush(prev[0])
+            piece = [piece[-1]] if now is not None and piece else []
+            if now is None:
+                marks["lost"].append(prev[1:])
+        if now is not None:
+            if now[0] not in seen:
+                seen[now[0]] = next(colours)
+            if not marks["first chosen"]:
+                marks["first chosen"].append(now[1:])
+            elif prev is None:
+                marks["taken back"].append(now[1:])
+            piece.append(now[1:])
+        prev = now
+    if prev is not None:
+        flush(prev[0])
+    for (name, pts), style in zip(marks.items(), ("*", "x", "o"), strict=True):
+        if pts:
+            xs, ys = zip(*pts, strict=True)
+            ax.plot(ys, xs, style, color="k", ms=9 if style == "*" else 6, mfc="none"
+                    if style == "o" else None, label=f"target {name} ({len(pts)})")  # fmt: skip
+    ax.plot([0], [0], "^", color="k", ms=10, label="laser (facing up)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.invert_xaxis()  # y (left) to the left
+    ax.set_xlabel("y (m, left)")
+    ax.set_ylabel("x (m, forward)")
+    ax.grid(alpha=0.3)
+    ax.plot([], [], color="0.6", lw=0.6, label="people tracks")
+    ax.plot([], [], color="C0", lw=2.2, label=f"target, a colour per track id ({len(seen)})")
+
+
 def plots(result: dict, runs: dict[str, dict[str, LogRun]], out: Path) -> list[Path]:
     """PNG plots of the figures; returns the files written."""
     import matplotlib
@@ -1122,22 +1189,25 @@ def plots(result: dict, runs: dict[str, dict[str, LogRun]], out: Path) -> list[P
         written.append(path)
     demo = {p: r["demo_stationary"] for p, r in runs.items() if "demo_stationary" in r}
     if demo and "skipped" not in result["demo"]:
-        fig, axes = plt.subplots(len(demo), 1, figsize=(9, 2.2 * len(demo) + 0.6),
-                                 squeeze=False, constrained_layout=True)  # fmt: skip
-        for ax, (preset, run) in zip(axes[:, 0], demo.items(), strict=True):
+        fig, axes = plt.subplots(len(demo), 2, figsize=(13, 4.2 * len(demo) + 0.6), squeeze=False,
+                                 width_ratios=(2.2, 1), constrained_layout=True)  # fmt: skip
+        for (ax, top), (preset, run) in zip(axes, demo.items(), strict=True):
             t0 = run.stamps[0] if run.stamps else 0
             ts = [(s - t0) / 1e9 for s in run.stamps]
             ax.step(ts, [len(run.people.get(s, [])) for s in run.stamps], where="post",
                     lw=0.8, label="people published")  # fmt: skip
             has = [run.targets.get(s, ("",))[0] in HAS_TARGET for s in run.stamps]
-            top = max((len(v) for v in run.people.values()), default=1) + 0.5
-            ax.fill_between(ts, 0, top, where=has, step="post", alpha=0.2, color="green",
+            high = max((len(v) for v in run.people.values()), default=1) + 0.5
+            ax.fill_between(ts, 0, high, where=has, step="post", alpha=0.2, color="green",
                             label="target tracked")  # fmt: skip
-            ax.set_ylabel(preset)
+            ax.set_ylabel(f"{preset}: people")
             ax.set_xlim(0, ts[-1] if ts else 1)
+            ax.set_xlabel("time (s)")
+            top_down(top, run)
+            top.set_title(preset, fontsize=9)
         axes[0, 0].legend(loc="upper right")
-        axes[-1, 0].set_xlabel("time (s)")
-        fig.suptitle("demo_stationary: people tracks per scan and the target")
+        axes[0, 1].legend(loc="upper right", fontsize=7)
+        fig.suptitle("demo_stationary: people tracks per scan and the target; seen from above")
         save(fig, "demo.png")
     tp = {p: v for p, v in result["throughput"].items() if isinstance(v, dict) and v}
     if tp and "skipped" not in result["throughput"]:

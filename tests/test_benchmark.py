@@ -283,6 +283,30 @@ def test_a_loss_and_a_retake_are_counted_from_the_target_status_sequence():
     assert f["scans_unanswered"] == 1
 
 
+def test_the_top_down_plot_marks_where_the_target_was_chosen_lost_and_taken_back():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from followbot.benchmark import top_down
+
+    t = ("tracking", 4, 1.0, 0.5)
+    lost = ("lost", 4, 0.0, 0.0)
+    targets = [None, t, ("coasting", 4, 1.2, 0.5), lost, ("tracking", 9, 2.0, -1.0), lost]
+    people = [[], [(4, 1, 0.5)], [], [], [(9, 2, -1), (5, 3, 3)], [(5, 3, 3)]]
+    fig, ax = plt.subplots()
+    top_down(ax, made_up_run(people, targets))
+    marks = {line.get_label(): line.get_xydata().tolist() for line in ax.get_lines()}
+    plt.close(fig)
+    # plotted as (y, x): y to the left
+    assert marks["target first chosen (1)"] == [[0.5, 1.0]]
+    assert marks["target lost (2)"] == [[0.5, 1.2], [-1.0, 2.0]]
+    assert marks["target taken back (1)"] == [[-1.0, 2.0]]
+    assert "target, a colour per track id (2)" in marks
+    assert ax.xaxis_inverted()
+
+
 def test_the_bench_round_trip_runs_against_a_real_pong_process():
     """`followbot bench`'s round trip: a pong child process over Zenoh echoes every ping (its
     arguments once refused --count 0 and `make bench` stopped there)."""
