@@ -92,6 +92,11 @@ class VoteEvidence:
         self._switch = (tid, votes)
         return votes >= self.settings.switch_votes
 
+    def vetoed(self, tid: int) -> bool:
+        """Has vision's evidence ruled track ``tid`` out as the target (votes: the search's
+        rejection count says it)?"""
+        return False
+
     def may_reacquire(self, tid: int, distance: float | None, threshold: float | None) -> bool:
         """May vision's choice ``tid`` re-take a target lost earlier?"""
         limit = self.settings.reacquire_max_distance
@@ -141,6 +146,9 @@ class ProbabilityEvidence:
     def prefers(self, tid: int, target_id: int) -> bool:
         mine = self.log_odds.get(tid, 0.0)
         return mine >= self.settings.evidence_switch and mine > self.log_odds.get(target_id, 0.0)
+
+    def vetoed(self, tid: int) -> bool:
+        return self.log_odds.get(tid, 0.0) <= self.settings.evidence_veto
 
     def may_reacquire(self, tid: int, distance: float | None, threshold: float | None) -> bool:
         return self.log_odds.get(tid, 0.0) >= self.settings.evidence_reacquire

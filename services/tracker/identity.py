@@ -27,8 +27,9 @@ motion model, as a coasting track. The two then compete for the next candidates 
 assignment, so the target no longer jumps onto the person who hid it. ``identity.reject_votes``
 consecutive rejections still drop the target.
 
-Re-acquisition of a lost target: by appearance, only where it can be (search.py's gate);
-without vision, by the laser near where it was lost (``laser_reacquire_*``).
+Re-acquisition of a lost target: by appearance, only where it can be (search.py's gate); by
+the laser near where it was lost (``laser_reacquire_*``), with vision too unless vision ruled
+that track out or the loss was vision's own veto (``laser_reacquire_with_vision``).
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ class Identity:
         self._now = now
         self.target_id = -1
         self.had_target = False
+        self.dropped_by_vision = False  # the last loss was vision's veto, not the laser's
         self.vision_alive = False
         self.vision_stamp: int | None = None  # newest scan a verification judged
         self.vision_sources = False  # vision chose or confirmed the target this step
@@ -130,10 +132,11 @@ class Identity:
         self.had_target = True
         self._search.lost_at = None
 
-    def lose_target(self, track: Track) -> None:
+    def lose_target(self, track: Track, by_vision: bool = False) -> None:
         """The target is lost: its track ran out of misses, or vision dropped it."""
         self._search.note_loss(track)
         self.target_id = -1
+        self.dropped_by_vision = by_vision
         self._evidence.forget()
 
     def prior(self) -> tuple[int, Any] | None:
@@ -185,11 +188,18 @@ class Identity:
             if people:
                 self.set_target(min(people)[1])
                 return
-        if not self.had_target or vision:
+        if not self.had_target:
             return
+        if vision and (not si.laser_reacquire_with_vision or self.dropped_by_vision):
+            return  # a target vision dropped is not brought back by the laser
         best = self._laser_retake(z, matched)
-        if best >= 0:
+        if best >= 0 and not (vision and self._vetoed(best)):
             self.set_target(best)
+
+    def _vetoed(self, tid: int) -> bool:
+        """Vision has said track ``tid`` is not the target: rejected since the loss (the
+        search's count), or its evidence at the level that drops a target."""
+        return self._search.rejections(tid) > 0 or self._evidence.vetoed(tid)
 
     def _laser_retake(self, z: np.ndarray, matched: dict[int, int]) -> int:
         """Without vision, the track to re-take a lost target, or -1: the one nearest to where
@@ -344,7 +354,7 @@ class Identity:
             self._rollback(v.stamp_ns, scan, (seen[0].x_m, seen[0].y_m))
         if self._evidence.rejected(self.target_id):
             self.target_rejections += 1
-            self.lose_target(self._tracks.by_id[self.target_id])
+            self.lose_target(self._tracks.by_id[self.target_id], by_vision=True)
 
     def _rejection_counts(self, seen: VerifiedCandidate, v: Verification, scan: Scan) -> bool:
         """A rejection of the target's candidate counts, unless it is too near the camera

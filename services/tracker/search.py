@@ -232,6 +232,10 @@ class Search:
 
     # ------------------------------------------------------------------ the camera
 
+    def rejections(self, tid: int) -> int:
+        """How often vision rejected track ``tid`` since the loss."""
+        return self._rejected.get(tid, 0)
+
     def note_rejection(self, tid: int) -> None:
         """Vision judged track ``tid`` and said it is not the target."""
         self._rejected[tid] = self._rejected.get(tid, 0) + 1

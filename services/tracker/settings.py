@@ -214,6 +214,11 @@ class IdentitySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown
     """... and only this long after the loss (None: any time): a walker is 0.7 m on in under
     3 s; later, whoever passes where the target was lost is someone else. Beyond the thesis.
     docs/tracker_log.md: time on wrong people over 76 runs 16.2 -> 8.4 s."""
+    laser_reacquire_with_vision: bool = True
+    """With vision too, the laser re-takes a lost target by the rule above, unless vision
+    has rejected that track since the loss or its evidence is at the level that drops a
+    target (vision confirms or vetoes a re-take; issue 35: it is not needed for it). False:
+    with vision, only vision's choice re-takes."""
 
 
 class SearchSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

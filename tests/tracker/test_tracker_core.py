@@ -986,6 +986,55 @@ def test_without_vision_a_lost_target_is_retaken_only_soon_after_the_loss(max_s,
     assert (target.status == "tracking") is retaken
 
 
+@pytest.mark.parametrize("case", ["unjudged", "rejected", "off", "probability veto"])
+def test_with_vision_the_laser_retakes_a_lost_walker_unless_vision_ruled_it_out(case):
+    """identity.laser_reacquire_with_vision: the target walks behind something and comes out
+    walking on near where it was lost; with vision there the laser re-takes it as without
+    (vision is not needed for it), unless vision rejected that track since the loss (votes)
+    or its evidence is at the veto (probability)."""
+    evidence = "probability" if case == "probability veto" else "votes"
+    trk = following_at_two(
+        identity=IdentitySettings(
+            laser_reacquire_with_vision=case != "off", vision_evidence=evidence
+        )
+    )
+    target, k = _walk_then_hide(trk, 10)
+    assert target.status == "lost"
+    lost_y = target.y_m
+    # vision last judged at scan 15; until vision_stale_s (2 s) after it, vision is there
+    fresh = 15 + int(2.0e9 / SCAN_NS)
+    for j in range(k, fresh):
+        xy = (2.0, lost_y + 0.2 + 0.06 * (j - k))  # on at 0.5 m/s
+        still_robot(trk, j * SCAN_NS)
+        target, _ = trk.step(cands(j * SCAN_NS, xy))
+        if case in ("rejected", "probability veto"):
+            v = verification(j * SCAN_NS, [xy], chosen=-1, distances=[1.2], threshold=0.8)
+            if case == "probability veto":
+                v.candidates[0].probability = 0.02
+            trk.add_verification(v)
+    assert (target.status == "tracking") is (case == "unjudged")
+    if case == "unjudged":
+        assert target.y_m == pytest.approx(xy[1], abs=0.15)
+
+
+def test_a_target_vision_dropped_is_not_brought_back_by_the_laser():
+    """Vision rejected the target until it went (reject_votes): the laser does not re-take
+    the person walking on where it was dropped (vision's word is that it was someone else)."""
+    trk = following_at_two()
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0))
+    target = None
+    for k in range(1, 25):
+        xy = (2.0, 0.06 * k)  # walking left at 0.5 m/s, rejected by vision from scan 8 on
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, xy))
+        v = verification(k * SCAN_NS, [xy], chosen=0 if k < 8 else -1,
+                         distances=[0.3 if k < 8 else 1.2], threshold=0.8)  # fmt: skip
+        trk.add_verification(v)
+        if k == 12:
+            assert target.status == "lost"  # dropped by vision
+    assert target.status == "lost"
+
+
 def test_same_seed_same_output():
     def run(seed):
         trk = Tracker(TrackerSettings(acquire="nearest", seed=seed))
