@@ -6,7 +6,9 @@ the changed pixels. A rectangle smaller than 0.4 W H (30 720 px at 320 x 240) is
 movement: the next pair of frames is tried. The rectangle's vertical centre is then put on the
 image's horizontal centre line (thesis 3.5.1.2), so every later rectangle is centred there too.
 
-Laser (thesis 3.3.2, 4.2.2). The previous scan is the reference; beams whose range changed by
+Laser (thesis 3.3.2, 4.2.2). The previous scan is the reference (at least ``min_pair_s`` older:
+a faster scanner's scans in between are skipped, as are a faster camera's frames between the
+two compared); beams whose range changed by
 more than 30 mm (twice the scanner's +-15 mm) that fall on a leg of a candidate of the
 reference scan mark that candidate as moving. Exactly one moving candidate locates the person
 (x_model, y_model); its position is taken from the current scan's candidate nearest to it.
@@ -83,6 +85,13 @@ class AcquireSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     """... and the share of its beams that must have changed (see moving_candidates)."""
     pair_tolerance_s: float = 0.15
     """Largest stamp difference between the image pair and the laser fix that are paired."""
+    min_pair_s: Annotated[float, msgspec.Meta(ge=0)] = 0.08
+    """The two scans (and the two frames) compared are at least this far apart: a faster
+    sensor's scans or frames in between are skipped. Thesis 4.2 compares consecutive scans
+    about 120 ms apart, in which a walking leg moves ~60 mm, twice ``laser_threshold_m``; at
+    40 Hz it moves ~15 mm and nobody would ever be seen moving (the simulator's two-person
+    scenario at 40 Hz: no model in 40 s). 0.08: every scan up to 12.5 Hz, every second at
+    25 Hz, every fourth at 40 Hz."""
     match_radius_m: float = 0.4
     """Reference-scan mover to current-scan candidate: nearest within this radius."""
     column_margin_px: float = 20.0
@@ -211,6 +220,18 @@ def moving_pairs(
     of the two scans only; a person who moves has changed beams under its legs in both (where
     it went and where it was). Without this a bystander just behind the target was taken as the
     mover (thesis_5_2_4_side_by_side, ..._swapped)."""
+    return _movers(
+        ref_ranges, cur_ranges, ref_candidates, cur_candidates, threshold_m, min_beams,
+        match_radius_m, min_fraction,
+    )[0]  # fmt: skip
+
+
+def _movers(
+    ref_ranges, cur_ranges, ref_candidates, cur_candidates, threshold_m, min_beams,
+    match_radius_m, min_fraction,
+) -> tuple[list[tuple[int, int]], list[int]]:  # fmt: skip
+    """:func:`moving_pairs`, and every candidate of the current scan with changed beams
+    under its legs (paired or not)."""
     args = (threshold_m, min_beams, min_fraction)
     ref_movers = moving_candidates(ref_ranges, cur_ranges, ref_candidates, *args)
     cur_movers = moving_candidates(ref_ranges, cur_ranges, cur_candidates, *args)
@@ -225,7 +246,7 @@ def moving_pairs(
                 best, best_d = j, d
         if best >= 0:
             pairs.append((i, best))
-    return pairs
+    return pairs, cur_movers
 
 
 # --------------------------------------------------------------------------- builder
@@ -266,6 +287,8 @@ class ModelBuilder:
 
     def add_image(self, stamp_ns: int, bgr: np.ndarray, pan_rad: float) -> Acquisition | None:
         s, cam = self.settings, self.camera
+        if self._prev is not None and 0 <= stamp_ns - self._prev[0] < s.min_pair_s * 1e9:
+            return None  # too soon after the frame it would be compared with
         cur = smooth_grey(bgr)
         prev, self._prev = self._prev, (stamp_ns, cur, pan_rad)
         if prev is None or prev[1].shape != cur.shape or abs(prev[2] - pan_rad) > 1e-3:
@@ -286,16 +309,25 @@ class ModelBuilder:
         self, stamp_ns: int, ranges: np.ndarray, candidates: PersonCandidates
     ) -> Acquisition | None:
         s = self.settings
+        if self._ref is not None and 0 <= stamp_ns - self._ref[0] < s.min_pair_s * 1e9:
+            return None  # too soon after the scan it would be compared with
         ref, self._ref = self._ref, (stamp_ns, np.array(ranges, dtype=np.float64), candidates)
         if ref is None:
             return None
         self.attempts["laser_pairs"] += 1
-        movers = moving_pairs(
+        movers, changed = _movers(
             ref[1], ranges, ref[2], candidates, s.laser_threshold_m, s.min_changed_beams,
             s.match_radius_m, s.min_changed_fraction,
         )  # fmt: skip
         window_ns = s.alone_s * 1e9
-        if len(movers) > 1:
+        # Beyond the thesis: a candidate of this scan whose legs' beams changed but that has no
+        # counterpart in the reference (not detected there: it stood still, or stepped out
+        # from behind someone) may be the one who moved; within max_width_m of the pair found
+        # (where the image's motion cannot tell the two apart) the pair is not alone
+        # (thesis_5_2_4_turn_apart at 40 Hz: the target, undetected while it stood, set off
+        # and its step changed a beam by the non-target, who was taken as the mover)
+        alone = len(movers) == 1 and not self._near_other_mover(candidates, movers[0][1], changed)
+        if len(movers) > 1 or (movers and not alone):
             self._crowd.append(stamp_ns)
         elif len(movers) == 1:
             x, y = self._mover_position(ref[1], ranges, candidates, movers[0][1])
@@ -309,7 +341,7 @@ class ModelBuilder:
         else:
             return None
         self._crowd = [t for t in self._crowd if stamp_ns - t <= window_ns]
-        if len(movers) > 1 or len(self._crowd) >= s.crowd_pairs:
+        if not alone or len(self._crowd) >= s.crowd_pairs:
             self.attempts["ambiguous"] += 1  # thesis 4.2: the target must move alone
             return None
         self._fix = (stamp_ns, x, y)
@@ -318,6 +350,18 @@ class ModelBuilder:
             dtype=np.float64,
         ).reshape(-1, 2)
         return self._try()
+
+    def _near_other_mover(
+        self, candidates: PersonCandidates, mover: int, changed: list[int]
+    ) -> bool:
+        """Another candidate of ``changed`` within ``max_width_m`` of candidate ``mover``."""
+        c = candidates.candidates
+        return any(
+            j != mover
+            and math.hypot(c[j].x_m - c[mover].x_m, c[j].y_m - c[mover].y_m)
+            <= self.settings.max_width_m
+            for j in changed
+        )
 
     def _mover_position(
         self, ref: np.ndarray, cur: np.ndarray, candidates: PersonCandidates, index: int
