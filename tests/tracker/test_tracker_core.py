@@ -1035,6 +1035,23 @@ def test_a_target_vision_dropped_is_not_brought_back_by_the_laser():
     assert target.status == "lost"
 
 
+@pytest.mark.parametrize("new_images", [False, True])
+def test_scans_judged_on_one_image_count_as_one_look(new_images):
+    """A laser faster than the camera: vision judges several scans on the same image. Two
+    rejections of the target on one image are one look, not the two in a row (reject_votes 2)
+    that drop it; on two images they are two."""
+    trk = following_at_two()
+    trk.add_verification(verification(0, [(2.0, 0.0)], chosen=0, distances=[0.3], threshold=0.8))
+    for k in range(1, 6):
+        still_robot(trk, k * SCAN_NS)
+        target, _ = trk.step(cands(k * SCAN_NS, (2.0, 0.0)))
+        if k in (2, 3):
+            v = verification(k * SCAN_NS, [(2.0, 0.0)], chosen=-1, distances=[1.5], threshold=0.8)
+            v.image_stamp_ns = k * SCAN_NS if new_images else 2 * SCAN_NS
+            trk.add_verification(v)
+    assert (target.status == "lost") is new_images
+
+
 def test_same_seed_same_output():
     def run(seed):
         trk = Tracker(TrackerSettings(acquire="nearest", seed=seed))
