@@ -172,6 +172,7 @@ class VisionVerify:
         # for the people of their stamp (the tracker publishes both per scan, in either order)
         self.people: OrderedDict[int, People] = OrderedDict()
         self.waiting: OrderedDict[int, TrackState] = OrderedDict()
+        self._learnt_frame: ImageFeatures | None = None  # the image last learnt from
 
     def _connect(self) -> None:
         """Publishers, subscriptions, timers and the model holder's liveliness."""
@@ -478,7 +479,12 @@ class VisionVerify:
 
     def learn(self, frame: ImageFeatures, views: list[View], target: int) -> None:
         """Let an online verifier learn ``views[target]`` as the target, the others as
-        bystanders."""
+        bystanders; once per image (a laser faster than the camera has several scans judged
+        on one image: the same views again would crowd the reservoirs with copies)."""
+        if frame is self._learnt_frame:
+            self.count("learn_same_image")
+            return
+        self._learnt_frame = frame
         learnt = self.verifier.update(frame, views, target, self.model)
         if learnt is None:
             self.count("learn_no_view")

@@ -492,16 +492,16 @@ def test_any_candidates_any_pan_never_fail(model_file, xy, pan):
     assert v.chosen == -1 or v.candidates[v.chosen].in_view
 
 
-def online_judged(tmp_path, **learn):
-    """A vision_verify with an online model of person 1 (``learn`` settings) that judged the
-    crossing frame: the rig, the candidates, the verification, person 1's and 2's judged
-    candidates."""
+def online_judged(tmp_path, lockstep=False, **learn):
+    """A vision_verify with an online model of person 1 (``learn`` settings; ``lockstep``:
+    answer_every_scan) that judged the crossing frame: the rig, the candidates, the
+    verification, person 1's and 2's judged candidates."""
     from followbot.services.vision_verify.verifiers.online import OnlineVerifier
 
     camera, acq, _ = acquired_scene()
     path = tmp_path / "online.model"
     save_model(path, build_model(OnlineVerifier(), camera, acq, 3).to_message())
-    rig = loaded(path, verifier="online", learn=learn)
+    rig = loaded(path, verifier="online", learn=learn, answer_every_scan=lockstep)
     px, pan, cands, truth = crossing_frame()
     rig.put("sensors/image", Image.from_array(px, stamp_ns=cands.stamp_ns, pan_rad=pan))
     rig.put("perception/candidates", cands)
@@ -562,3 +562,26 @@ def test_only_the_tracker_s_other_people_are_learnt_as_bystanders(tmp_path, byst
     state = rig.svc.model.features["state"]
     assert state[0] == 2  # the target learnt
     assert state[1] == (0 if bystanders == "people" else len(v.candidates) - 1)
+
+
+def test_two_scans_judged_on_one_image_are_learnt_once(tmp_path):
+    """A laser faster than the camera: the second scan is judged on the same image; learning
+    it again would only copy the same views into the reservoirs."""
+    import msgspec
+
+    from followbot.schemas import TrackState
+
+    rig, cands, _, (mine, other) = online_judged(tmp_path, lockstep=True)
+    later = msgspec.structs.replace(cands, stamp_ns=cands.stamp_ns + 25_000_000)
+    rig.put("perception/candidates", later)
+    _, v = rig.verifications()
+    assert v.stamp_ns == later.stamp_ns and v.image_stamp_ns == cands.stamp_ns  # the same image
+    before = rig.svc.model.features["state"][0]
+    for stamp in (cands.stamp_ns, later.stamp_ns):
+        rig.put("tracking/people", people_at(stamp, mine, other))
+        rig.put(
+            "tracking/target",
+            TrackState(stamp_ns=stamp, status="tracking", x_m=mine.x_m, y_m=mine.y_m),
+        )
+    assert rig.svc.model.features["state"][0] == before + 1
+    assert rig.svc.counts["learn_same_image"] == 1
