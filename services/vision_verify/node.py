@@ -172,7 +172,11 @@ class VisionVerify:
         # for the people of their stamp (the tracker publishes both per scan, in either order)
         self.people: OrderedDict[int, People] = OrderedDict()
         self.waiting: OrderedDict[int, TrackState] = OrderedDict()
+        # lock-step: the tracker's states of scans not judged yet
+        self.early: OrderedDict[int, TrackState] = OrderedDict()
         self._learnt_frame: ImageFeatures | None = None  # the image last learnt from
+        # lock-step: (scan stamp, model id, frame, views, target) waiting to be learnt
+        self._learn_due: list[tuple[int, int, ImageFeatures, list[View], int]] = []
 
     def _connect(self) -> None:
         """Publishers, subscriptions, timers and the model holder's liveliness."""
@@ -219,7 +223,7 @@ class VisionVerify:
                 self.on_target,
                 capacity=16,
                 dispatch="loop",
-                on_restart=self.judged.clear,
+                on_restart=self._forget_judged,
             )
             if settings.learn.bystanders == "people":
                 node.subscribe(
@@ -234,6 +238,11 @@ class VisionVerify:
         node.every(settings.recovery.query_period_s, self.ask, name="ask_model")
         if settings.recovery.holder:
             node.bus.watch_liveliness(node.keys.alive(settings.recovery.holder), self._on_holder)
+
+    def _forget_judged(self) -> None:
+        """The tracker restarted: the judged scans and early states wait for nothing more."""
+        self.judged.clear()
+        self.early.clear()
 
     # ------------------------------------------------------------------ helpers
 
@@ -401,6 +410,7 @@ class VisionVerify:
     # ------------------------------------------------------------------ judging
 
     def judge(self, msg: PersonCandidates, frame: _Frame) -> None:
+        self._learn_due_now()
         model = self.model
         xy = np.array([[c.x_m, c.y_m] for c in msg.candidates], dtype=np.float64).reshape(-1, 2)
         try:
@@ -472,15 +482,43 @@ class VisionVerify:
             self.judged[stamp_ns] = (frame, j.views, j.distances, model_id)
             while len(self.judged) > learn.scans:
                 self.judged.popitem(last=False)
+            early = self.early.pop(stamp_ns, None)
+            if early is not None:  # lock-step: the tracker's state came before this judgement
+                self.on_target(early)
         elif learn.source == "confident" and confident(
             j.distances, j.chosen, learn.confident_max_distance, learn.confident_margin
         ):
             self.learn(frame, j.views, j.chosen)
 
-    def learn(self, frame: ImageFeatures, views: list[View], target: int) -> None:
+    def learn(
+        self, frame: ImageFeatures, views: list[View], target: int, stamp_ns: int | None = None
+    ) -> None:
         """Let an online verifier learn ``views[target]`` as the target, the others as
         bystanders; once per image (a laser faster than the camera has several scans judged
-        on one image: the same views again would crowd the reservoirs with copies)."""
+        on one image: the same views again would crowd the reservoirs with copies).
+
+        Lock-step (``answer_every_scan``), what the tracker's state of scan ``stamp_ns`` taught
+        is learnt just before judging the second scan after it, never the next one: that
+        state and the next scan's candidates come from two processes in either order, and a
+        model learnt before or after judging that scan would make reruns differ."""
+        if self.s.answer_every_scan and stamp_ns is not None:
+            model_id = self.model.model_id if self.model is not None else 0
+            self._learn_due.append((stamp_ns, model_id, frame, views, target))
+            del self._learn_due[: -self.s.learn.scans]  # bounded: no scans judged, no learning
+            return
+        self._learn_now(frame, views, target)
+
+    def _learn_due_now(self) -> None:
+        """Lock-step: the learning of scans before the last one judged (see :meth:`learn`)."""
+        due = [d for d in self._learn_due if d[0] < self.last_judged_ns]
+        if not due:
+            return
+        self._learn_due = [d for d in self._learn_due if d[0] >= self.last_judged_ns]
+        for _, model_id, frame, views, target in sorted(due, key=lambda d: d[0]):
+            if self.model is not None and self.model.model_id == model_id:
+                self._learn_now(frame, views, target)
+
+    def _learn_now(self, frame: ImageFeatures, views: list[View], target: int) -> None:
         if frame is self._learnt_frame:
             self.count("learn_same_image")
             return
@@ -505,7 +543,19 @@ class VisionVerify:
             self.on_target(state)
 
     def on_target(self, state: TrackState) -> None:
-        """The tracker's target at a judged scan: learn which candidate it was."""
+        """The tracker's target at a judged scan: learn which candidate it was. Lock-step, a
+        state that comes before its scan is judged (the tracker applies vision a scan late,
+        so it does not wait for this scan's judgement) waits for it: learnt or not depending
+        on which came first, reruns would differ."""
+        if (
+            self.s.answer_every_scan
+            and state.stamp_ns > self.last_judged_ns
+            and state.stamp_ns not in self.judged
+        ):
+            self.early[state.stamp_ns] = state
+            while len(self.early) > self.s.learn.scans:
+                self.early.popitem(last=False)
+            return
         people = None
         if self.s.learn.bystanders == "people":
             people = self.people.get(state.stamp_ns)
@@ -540,7 +590,7 @@ class VisionVerify:
             self.count("learn_not_agreed")  # the tracker may follow someone else: not learnt
             return
         if people is None:
-            self.learn(frame, views, near[0])
+            self.learn(frame, views, near[0], state.stamp_ns)
             return
         # bystanders: only candidates on the tracker's other people (not clutter)
         others = [
@@ -552,7 +602,7 @@ class VisionVerify:
             for i, v in enumerate(views)
             if i == near[0] or any(math.hypot(v.x_m - x, v.y_m - y) <= gate for x, y in others)
         ]
-        self.learn(frame, [views[i] for i in keep], keep.index(near[0]))
+        self.learn(frame, [views[i] for i in keep], keep.index(near[0]), state.stamp_ns)
 
     def publish_empty(self, msg: PersonCandidates, model_id: int | None = None) -> None:
         """An answer that judged nothing; ``model_id`` defaults to the current model's."""

@@ -566,22 +566,73 @@ def test_only_the_tracker_s_other_people_are_learnt_as_bystanders(tmp_path, byst
 
 def test_two_scans_judged_on_one_image_are_learnt_once(tmp_path):
     """A laser faster than the camera: the second scan is judged on the same image; learning
-    it again would only copy the same views into the reservoirs."""
+    it again would only copy the same views into the reservoirs. Lock-step: what scan k
+    taught is learnt just before judging scan k + 2, whichever of the tracker's state of k
+    and the candidates of k + 1 came first (reruns agree)."""
     import msgspec
 
     from followbot.schemas import TrackState
 
     rig, cands, _, (mine, other) = online_judged(tmp_path, lockstep=True)
-    later = msgspec.structs.replace(cands, stamp_ns=cands.stamp_ns + 25_000_000)
-    rig.put("perception/candidates", later)
-    _, v = rig.verifications()
-    assert v.stamp_ns == later.stamp_ns and v.image_stamp_ns == cands.stamp_ns  # the same image
     before = rig.svc.model.features["state"][0]
-    for stamp in (cands.stamp_ns, later.stamp_ns):
+
+    def scan(k):
+        later = msgspec.structs.replace(cands, stamp_ns=cands.stamp_ns + k * 15_000_000)
+        rig.put("perception/candidates", later)
+        return rig.verifications()[-1]
+
+    def tracker_says(k):
+        stamp = cands.stamp_ns + k * 15_000_000
         rig.put("tracking/people", people_at(stamp, mine, other))
         rig.put(
             "tracking/target",
             TrackState(stamp_ns=stamp, status="tracking", x_m=mine.x_m, y_m=mine.y_m),
         )
+
+    tracker_says(0)  # before the next scan's candidates
+    v = scan(1)
+    assert v.image_stamp_ns == cands.stamp_ns  # the same image
+    assert rig.svc.model.features["state"][0] == before  # not learnt before judging scan 1
+    tracker_says(1)
+    scan(2)  # scan 0's lesson is learnt first
+    assert rig.svc.model.features["state"][0] == before + 1
+    scan(3)  # scan 1's: the same image again, not learnt twice
     assert rig.svc.model.features["state"][0] == before + 1
     assert rig.svc.counts["learn_same_image"] == 1
+
+
+def test_lockstep_learning_does_not_depend_on_which_message_comes_first(tmp_path):
+    """Lock-step: the tracker's state of scan k may reach vision_verify before or after scan
+    k is judged (the tracker applies vision a scan late, so it does not wait for it); either
+    way the same is learnt, at the same point (reruns of a run agree)."""
+    import msgspec
+
+    from followbot.schemas import TrackState
+
+    models = []
+    for state_first in (False, True):
+        rig, cands, _, (mine, other) = online_judged(tmp_path / str(state_first), lockstep=True)
+
+        def at(k, cands=cands):
+            return msgspec.structs.replace(cands, stamp_ns=cands.stamp_ns + k * 15_000_000)
+
+        def tracker_says(k, rig=rig, cands=cands, mine=mine, other=other):
+            stamp = cands.stamp_ns + k * 15_000_000
+            rig.put("tracking/people", people_at(stamp, mine, other))
+            rig.put(
+                "tracking/target",
+                TrackState(stamp_ns=stamp, status="tracking", x_m=mine.x_m, y_m=mine.y_m),
+            )
+
+        if state_first:
+            tracker_says(1)
+        rig.put("perception/candidates", at(1))
+        if not state_first:
+            tracker_says(1)
+        for k in (2, 3):
+            rig.put("perception/candidates", at(k))
+        models.append({k: a.copy() for k, a in rig.svc.model.features.items()})
+    assert models[0].keys() == models[1].keys()
+    for k in models[0]:
+        np.testing.assert_array_equal(models[0][k], models[1][k])
+    assert models[0]["state"][0] == 2  # the acquisition's view and scan 1's
