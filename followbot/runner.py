@@ -302,6 +302,21 @@ def check_stage_overrides(preset: str, overrides: list[str]) -> None:
     apply_stage_overrides({**stage_settings(preset, True), "sim": {}}, overrides)
 
 
+def _at_laser_rate(spec, name: str, rate_hz: float, out_dir: Path):
+    """``spec`` with its laser at ``rate_hz``, written to ``out_dir``: (its path, the spec)."""
+    import msgspec
+    import yaml
+
+    from followbot.services.sim.scenario import parse_scenario
+
+    data = msgspec.to_builtins(spec)
+    data["laser"]["rate_hz"] = float(rate_hz)
+    path = out_dir / f"{name}_{rate_hz:g}hz.yaml"
+    spec = parse_scenario(data, source=str(path))  # a rate out of bounds fails here, named
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(path), spec
+
+
 def run_scenario(
     scenario: str,
     preset: str,
@@ -314,9 +329,12 @@ def run_scenario(
     timeout_s: float = 600.0,
     vision: bool = True,
     overrides: list[str] | None = None,
+    laser_rate_hz: float | None = None,
 ):
     """Run ``scenario`` with ``preset``; returns a :class:`followbot.evaluation.ScenarioRun`.
-    ``overrides``: ``STAGE.key=value`` settings on top of the preset (``followbot eval --set``)."""
+    ``overrides``: ``STAGE.key=value`` settings on top of the preset (``followbot eval --set``);
+    ``laser_rate_hz``: the scenario's laser at this rate instead of its own (the scenario
+    written into ``out_dir`` with that one change, named ``NAME_RATEhz``)."""
     from followbot.evaluation import ScanRecord, ScenarioRun
     from followbot.mcapio import McapTopicWriter
     from followbot.services.runtime.bus import ZenohBus
@@ -329,6 +347,9 @@ def run_scenario(
     name = Path(scenario).stem if scenario.endswith((".yaml", ".yml")) else scenario
     duration_s = spec.duration_s
     out_dir.mkdir(parents=True, exist_ok=True)
+    if laser_rate_hz is not None:
+        scenario, spec = _at_laser_rate(spec, name, laser_rate_hz, out_dir)
+        name = Path(scenario).stem
     endpoint = free_loopback_endpoint()
     robot = f"eval{os.getpid()}x{int(time.monotonic() * 1000) % 100000}"
     lockstep = not realtime
