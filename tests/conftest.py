@@ -18,6 +18,20 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 
+def shortened_scenario(name: str, duration_s: float, folder: Path) -> Path:
+    """A built-in scenario's file cut to its first ``duration_s``, written into ``folder``."""
+    from importlib import resources
+
+    import yaml
+
+    text = resources.files("followbot.services.sim").joinpath("scenarios", f"{name}.yaml")
+    spec = yaml.safe_load(text.read_text())
+    spec["duration_s"] = duration_s
+    path = folder / f"{name}_{duration_s:g}s.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
 def pytest_addoption(parser):
     parser.addoption("--run-soak", action="store_true", help="run the long soak tests")
     parser.addoption(

@@ -764,19 +764,12 @@ def test_eval_runs_a_scenario_at_another_laser_rate(tmp_path):
     """--laser-rate-hz: the scenario's laser at that rate (a 40 Hz scanner): four times the
     scans of the same duration, the run named NAME_40hz; a rate out of range is refused."""
     import json
-    from importlib import resources
 
-    import yaml
+    from conftest import shortened_scenario
 
     from followbot.eval_cli import main as eval_main
 
-    text = resources.files("followbot.services.sim").joinpath(
-        "scenarios", "thesis_5_2_4_two_people.yaml"
-    )
-    spec = yaml.safe_load(text.read_text())
-    spec["duration_s"] = 3.0
-    path = tmp_path / "short.yaml"
-    path.write_text(yaml.safe_dump(spec))
+    path = shortened_scenario("thesis_5_2_4_two_people", 3.0, tmp_path)
     args = ["--scenario", str(path), "--no-record", "--preset", "thesis"]
     assert eval_main([*args, "--laser-rate-hz", "40", "--output", str(tmp_path / "a")]) == 0
     assert eval_main([*args, "--output", str(tmp_path / "b")]) == 0
@@ -784,7 +777,7 @@ def test_eval_runs_a_scenario_at_another_laser_rate(tmp_path):
     own = json.loads((tmp_path / "b" / "summary.json").read_text())["scenarios"]
     ((name, run),) = fast.items()
     ((_, run_own),) = own.items()
-    assert "short_40hz" in name
+    assert "thesis_5_2_4_two_people_3s_40hz" in name
     assert run["scans"] == pytest.approx(3.0 * 40, abs=2)
     assert run_own["scans"] == pytest.approx(3.0 / 0.12, abs=2)
     assert eval_main([*args, "--laser-rate-hz", "0", "--output", str(tmp_path / "c")]) == 2
