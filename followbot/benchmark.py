@@ -48,7 +48,10 @@ Sections (``--only`` picks some):
                 twice: the churn a user sees); target: when it was first chosen (above),
                 the share of scans it is tracked from then on, how often it was lost (status
                 lost) and how often taken back (tracked again after a loss; by the laser near
-                where it was lost, so possibly by another track id: the ids are counted).
+                where it was lost, so possibly by another track id: the ids are counted), and
+                how many of those re-takes were by a track already published before the loss
+                (someone who was elsewhere when the target vanished: most likely another
+                person; no labels needed).
 
 Every pipeline run also gives its throughput (throughput section): scans per second from the
 first scan sent to the last answered (reading the file included, start-up not), and the
@@ -380,14 +383,17 @@ def churn_figures(run: LogRun) -> dict:
     per_scan = [len(run.people.get(s, [])) for s in run.stamps]
     first = None
     has = False
-    losses = taken_back = 0
+    losses = taken_back = by_older = 0
     lost_at = None
     lost_s: list[float] = []
     with_target = after = 0
     target_ids = set()
+    seen: set[int] = set()  # every track id published so far
+    seen_at_loss: set[int] = set()
     for s in run.stamps:
         t = run.targets.get(s)
         if t is None:  # no answer for this scan: nothing known, nothing changes
+            seen.update(i for i, *_ in run.people.get(s, []))
             continue
         now = t[0] in HAS_TARGET
         if now:
@@ -400,10 +406,13 @@ def churn_figures(run: LogRun) -> dict:
         if has and not now:
             losses += 1
             lost_at = s
+            seen_at_loss = set(seen)
         elif now and not has and lost_at is not None:
             taken_back += 1
             lost_s.append((s - lost_at) / 1e9)
+            by_older += t[1] in seen_at_loss  # a track that was someone else's before the loss
         has = now
+        seen.update(i for i, *_ in run.people.get(s, []))
     t0 = run.stamps[0] if run.stamps else 0
     return {
         "scans": run.scans,
@@ -415,6 +424,7 @@ def churn_figures(run: LogRun) -> dict:
         "target_tracked_after_first": _r(with_target / after if after else None),
         "target_losses": losses,
         "target_taken_back": taken_back,
+        "target_taken_back_by_older_track": by_older,
         "target_lost_at_end": bool(first is not None and not has),
         "target_ids": len(target_ids),
         "lost_s_median": _r(sorted(lost_s)[len(lost_s) // 2] if lost_s else None, 1),
@@ -834,9 +844,12 @@ def summary_rows(result: dict) -> list[tuple[str, dict[str, str]]]:
 
     def lost(p) -> str:
         f = result["demo"].get(p)
-        return "-" if f is None else f"{f['target_losses']} / {f['target_taken_back']}"
+        if f is None:
+            return "-"
+        older = f.get("target_taken_back_by_older_track", "-")
+        return f"{f['target_losses']} / {f['target_taken_back']} / {older}"
 
-    add("demo_stationary: target lost / taken back", lost)
+    add("demo_stationary: target lost / taken back / by a track seen before the loss", lost)
     verifiers = result["appearance"].get("verifiers", {})
     for protocol in ("one view", "following"):
         for lag in APPEARANCE_LAGS:
@@ -1011,7 +1024,7 @@ def _appearance_md(d: dict) -> list[str]:
 def _demo_md(d: dict) -> list[str]:
     columns = ["preset", "scans", "minutes", "person ids", "new ids/min", "people/scan",
                "target first chosen at", "tracked after", "losses", "taken back",
-               "lost at the end", "target ids"]  # fmt: skip
+               "by a track seen before the loss", "lost at the end", "target ids"]  # fmt: skip
     rows = [
         [
             preset,
@@ -1024,6 +1037,7 @@ def _demo_md(d: dict) -> list[str]:
             _pct(f["target_tracked_after_first"]),
             f["target_losses"],
             f["target_taken_back"],
+            f.get("target_taken_back_by_older_track", "-"),
             "yes" if f["target_lost_at_end"] else "no",
             f["target_ids"],
         ]

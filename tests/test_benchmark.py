@@ -276,11 +276,25 @@ def test_a_loss_and_a_retake_are_counted_from_the_target_status_sequence():
     assert f["target_losses"] == 2 and f["target_taken_back"] == 1
     assert f["lost_s_median"] == 3.0  # lost at 4 s, taken back at 7 s
     assert f["target_lost_at_end"] is True and f["target_ids"] == 2
+    assert f["target_taken_back_by_older_track"] == 0  # track 9 was first seen after the loss
     # of the 7 answered scans from the first choice on, 3 had the target
     assert f["target_tracked_after_first"] == about(3 / 7)
     assert f["person_ids"] == 2
     assert f["new_ids_per_min"] == pytest.approx(2 / (9 / 60), abs=0.1)
     assert f["scans_unanswered"] == 1
+
+
+def test_a_retake_by_a_track_published_before_the_loss_is_counted():
+    """The target (track 4) is lost; track 7, seen elsewhere before the loss, takes it over:
+    most likely someone else, counted without labels. A track first seen after the loss is
+    not."""
+    t4, t7, t8 = ("tracking", 4, 1.0, 0.0), ("tracking", 7, 1.5, 0.0), ("tracking", 8, 1.0, 0.0)
+    lost = ("lost", 4, 0.0, 0.0)
+    targets = [t4, t4, lost, t7, lost, lost, t8]
+    people = [[(4, 1, 0), (7, 3, 2)], [(4, 1, 0), (7, 2, 1)], [(7, 1.6, 0.2)], [(7, 1.5, 0)],
+              [], [(8, 1, 0)], [(8, 1, 0)]]  # fmt: skip
+    f = churn_figures(made_up_run(people, targets))
+    assert f["target_taken_back"] == 2 and f["target_taken_back_by_older_track"] == 1
 
 
 def test_the_top_down_plot_marks_where_the_target_was_chosen_lost_and_taken_back():
