@@ -330,11 +330,13 @@ def run_scenario(
     vision: bool = True,
     overrides: list[str] | None = None,
     laser_rate_hz: float | None = None,
+    record_images: bool = False,
 ):
     """Run ``scenario`` with ``preset``; returns a :class:`followbot.evaluation.ScenarioRun`.
     ``overrides``: ``STAGE.key=value`` settings on top of the preset (``followbot eval --set``);
     ``laser_rate_hz``: the scenario's laser at this rate instead of its own (the scenario
-    written into ``out_dir`` with that one change, named ``NAME_RATEhz``)."""
+    written into ``out_dir`` with that one change, named ``NAME_RATEhz``); ``record_images``:
+    the recording holds the camera's images too (to see what vision judged)."""
     from followbot.evaluation import ScanRecord, ScenarioRun
     from followbot.mcapio import McapTopicWriter
     from followbot.services.runtime.bus import ZenohBus
@@ -390,7 +392,7 @@ def run_scenario(
             now = time.monotonic_ns()
             if writer is not None:
                 writer.write(topic, payload, msg.stamp_ns, time.time_ns())
-            if topic in ("sensors/odom", "control/pan"):
+            if topic in ("sensors/odom", "control/pan", "sensors/image"):
                 return
             st = stamps.setdefault(msg.stamp_ns, _Stamp())
             if topic == "sim/truth":
@@ -404,7 +406,7 @@ def run_scenario(
 
         return handle
 
-    for topic in RECORDED:
+    for topic in (*RECORDED, "sensors/image") if record_images and record else RECORDED:
         node.subscribe(topic, on(topic), with_payload=True)
     procs = StageProcesses(out_dir)
     t_wall0 = time.monotonic()

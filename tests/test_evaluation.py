@@ -781,3 +781,26 @@ def test_eval_runs_a_scenario_at_another_laser_rate(tmp_path):
     assert run["scans"] == pytest.approx(3.0 * 40, abs=2)
     assert run_own["scans"] == pytest.approx(3.0 / 0.12, abs=2)
     assert eval_main([*args, "--laser-rate-hz", "0", "--output", str(tmp_path / "c")]) == 2
+
+
+def test_eval_records_the_camera_images_when_asked(tmp_path):
+    """--record-images: the run's recording holds sensors/image (what vision judged), beside
+    the topics it always holds; without it, no image."""
+    from collections import Counter
+
+    from conftest import shortened_scenario
+
+    from followbot.eval_cli import main as eval_main
+    from followbot.mcapio import McapStream
+
+    path = shortened_scenario("thesis_5_2_4_two_people", 2.0, tmp_path)
+    counts = {}
+    for images in (True, False):
+        out = tmp_path / str(images)
+        args = ["--scenario", str(path), "--preset", "thesis", "--output", str(out)]
+        assert eval_main([*args, *(["--record-images"] if images else [])]) == 0
+        (mcap,) = out.glob("runs/*/run.mcap")
+        counts[images] = Counter(topic for topic, _, _ in McapStream(str(mcap)).messages())
+    assert counts[True]["sensors/image"] >= 15  # 10 Hz for 2 s
+    assert counts[False]["sensors/image"] == 0
+    assert counts[True]["sensors/scan"] == counts[False]["sensors/scan"] > 0
